@@ -1,0 +1,5 @@
+import sys
+
+from physdyn.cli import main
+
+sys.exit(main())

@@ -1,0 +1,167 @@
+"""Typed config schemas, YAML loading and ``key=value`` overrides.
+
+Configs are plain YAML merged onto a dataclass schema with OmegaConf, so an unknown key or a wrong type is a
+one-line ``ConfigError`` naming the key. A YAML file may start with ``defaults: [other.yaml, ...]`` (paths
+relative to the file) to compose presets from smaller files.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Type, TypeVar
+
+import yaml
+from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from physdyn.errors import ConfigError
+from physdyn.registry import _omegaconf_message
+
+S = TypeVar("S")
+
+
+# --------------------------------------------------------------------------------------------------
+# Dataset generation (`physdyn simulate`)
+# --------------------------------------------------------------------------------------------------
+@dataclass
+class PhysicsConfig:
+    """PyBullet settings. Defaults are the paper's where it says, see docs/conventions.md."""
+
+    time_step: float = 1.0 / 240.0
+    gravity: float = -9.81
+    lateral_friction_object: float = 0.5
+    lateral_friction_ground: float = 0.5  # Bullet multiplies: effective Coulomb mu = 0.25
+    rolling_friction_object: float = 0.01  # without it round shapes roll until the time cap
+    rolling_friction_ground: float = 0.0
+    spinning_friction: float = 0.0
+    linear_damping: float = 0.0  # PyBullet's default 0.04 would slow free motion
+    angular_damping: float = 0.0
+    restitution: float = 0.0
+    rest_linear_speed: float = 0.01  # m/s
+    rest_angular_speed: float = 0.1  # rad/s
+    rest_duration: float = 0.5  # s at rest before the simulation stops
+    max_duration: float = 7.0  # s
+
+
+@dataclass
+class ImpulseConfig:
+    """The push: a horizontal force over one physics step with impulse = mass x speed."""
+
+    speed_min: float = 0.5  # m/s
+    speed_max: float = 2.0  # m/s
+    # The push point's height is drawn within +/- this fraction of the object's height around the
+    # centre-of-mass height; its sideways offset within +/- this fraction of the half-width (spin).
+    height_fraction: float = 0.25
+    lateral_fraction: float = 0.5
+
+
+@dataclass
+class FrictionConfig:
+    """Per-simulation random friction for the friction-generalisation experiment."""
+
+    random: bool = False
+    # Range of the *effective* Coulomb coefficient (object x ground lateral friction).
+    min: float = 0.1
+    max: float = 0.5
+
+
+@dataclass
+class MassConfig:
+    method: str = "exact"  # exact | voxel (the paper's estimate)
+    density: float = 10.0  # kg/m^3; the paper's public data use 10
+    voxel_pitch: float = 0.025  # m; reduced to smallest extent / 40 for small objects
+
+
+@dataclass
+class FamilySpec:
+    shapes: int = 100  # instances to draw (a mesh folder uses all its files)
+    sims_per_shape: int = 65
+    params: Dict[str, Any] = field(default_factory=dict)  # checked against the family's Config
+
+
+@dataclass
+class MeshFolderConfig:
+    """Source of the `meshes` family: every mesh file in a folder."""
+
+    dir: Optional[str] = None
+    scale: float = 1.0  # multiply coordinates by this to get metres (0.01 for centimetre files)
+    recursive: bool = True
+    category: str = "meshes"
+
+
+@dataclass
+class SplitConfig:
+    test_fraction: float = 0.2
+    val_fraction: float = 0.1  # of the training shapes
+
+
+@dataclass
+class DataConfig:
+    seed: int = 0
+    rate_hz: float = 15.0
+    num_points: int = 1024
+    oversample: int = 3
+    families: Dict[str, FamilySpec] = field(default_factory=dict)
+    meshes: MeshFolderConfig = field(default_factory=MeshFolderConfig)
+    physics: PhysicsConfig = field(default_factory=PhysicsConfig)
+    impulse: ImpulseConfig = field(default_factory=ImpulseConfig)
+    friction: FrictionConfig = field(default_factory=FrictionConfig)
+    mass: MassConfig = field(default_factory=MassConfig)
+    split: SplitConfig = field(default_factory=SplitConfig)
+    shapes_per_block: int = 4  # unit of work and of resumption
+
+
+# --------------------------------------------------------------------------------------------------
+# Loading
+# --------------------------------------------------------------------------------------------------
+def _read_yaml(path: Path, seen: tuple[Path, ...] = ()) -> DictConfig:
+    path = path.expanduser()
+    if not path.is_file():
+        raise ConfigError(f"config file not found: {path}; pass an existing YAML file to --config")
+    if path.resolve() in seen:
+        raise ConfigError(f"config {path}: 'defaults' includes itself in a cycle")
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" line {mark.line + 1}" if mark is not None else ""
+        raise ConfigError(f"config {path}{where} is not valid YAML: {getattr(exc, 'problem', exc)}") from None
+    if raw is None:
+        raw = {}
+    if not isinstance(raw, dict):
+        raise ConfigError(f"config {path} must be a mapping of keys to values, got {type(raw).__name__}")
+    defaults = raw.pop("defaults", []) or []
+    if isinstance(defaults, str):
+        defaults = [defaults]
+    parts = [_read_yaml(path.parent / d, seen + (path.resolve(),)) for d in defaults]
+    return OmegaConf.merge(*parts, OmegaConf.create(raw)) if parts else OmegaConf.create(raw)
+
+
+def load_config(schema: Type[S], path: str | Path | None = None, overrides: List[str] | None = None) -> S:
+    """Merge ``schema`` defaults, the YAML at ``path`` and dotlist ``overrides``; return a typed object."""
+    try:
+        base = OmegaConf.structured(schema)
+        layers = [base]
+        if path is not None:
+            layers.append(_read_yaml(Path(path)))
+        for item in overrides or []:
+            if "=" not in item:
+                raise ConfigError(f"override '{item}' is not key=value (e.g. seed=3)")
+            layers.append(OmegaConf.from_dotlist([item]))
+        merged = OmegaConf.merge(*layers)
+        return OmegaConf.to_object(merged)  # type: ignore[return-value]
+    except OmegaConfBaseException as exc:
+        raise ConfigError(_omegaconf_message(exc)) from None
+
+
+def to_dict(config: Any) -> dict:
+    """A plain, JSON-serialisable dict of a config object (for store attributes and checkpoints)."""
+    return OmegaConf.to_container(OmegaConf.structured(config), resolve=True)  # type: ignore[return-value]
+
+
+def config_from_dict(schema: Type[S], data: dict) -> S:
+    try:
+        return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(schema), data))  # type: ignore
+    except OmegaConfBaseException as exc:
+        raise ConfigError(_omegaconf_message(exc)) from None

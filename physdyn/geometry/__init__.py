@@ -1,0 +1,1 @@
+"""Shapes: procedural families, mesh loading, mass properties, resting poses and surface sampling."""

@@ -1,0 +1,4 @@
+"""Shape families, registered by name in ``physdyn.registry.SHAPE_FAMILIES``.
+
+Importing this package registers the built-ins.
+"""

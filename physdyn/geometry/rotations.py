@@ -1,0 +1,73 @@
+"""Rotation maths on scalar-last (x, y, z, w) quaternions, as PyBullet and SciPy store them."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+
+def quat_to_matrix(q_xyzw: np.ndarray) -> np.ndarray:
+    """q_xyzw: (..., 4) -> (..., 3, 3)."""
+    q = np.asarray(q_xyzw, dtype=np.float64)
+    return Rotation.from_quat(q.reshape(-1, 4)).as_matrix().reshape(q.shape[:-1] + (3, 3))
+
+
+def matrix_to_quat(m: np.ndarray) -> np.ndarray:
+    """m: (..., 3, 3) rotation matrices -> (..., 4) unit quaternions with w >= 0."""
+    m = np.asarray(m, dtype=np.float64)
+    q = Rotation.from_matrix(m.reshape(-1, 3, 3)).as_quat().reshape(m.shape[:-2] + (4,))
+    return canonical_quat(q)
+
+
+def canonical_quat(q_xyzw: np.ndarray) -> np.ndarray:
+    """The same rotation with w >= 0 (q and -q are one rotation)."""
+    q = np.asarray(q_xyzw, dtype=np.float64)
+    return np.where(q[..., 3:4] < 0, -q, q)
+
+
+def quat_multiply(a_xyzw: np.ndarray, b_xyzw: np.ndarray) -> np.ndarray:
+    """Hamilton product a * b (apply b, then a)."""
+    ax, ay, az, aw = np.moveaxis(np.asarray(a_xyzw, dtype=np.float64), -1, 0)
+    bx, by, bz, bw = np.moveaxis(np.asarray(b_xyzw, dtype=np.float64), -1, 0)
+    return np.stack(
+        [
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz,
+        ],
+        axis=-1,
+    )
+
+
+def quat_conjugate(q_xyzw: np.ndarray) -> np.ndarray:
+    q = np.asarray(q_xyzw, dtype=np.float64)
+    return np.concatenate([-q[..., :3], q[..., 3:]], axis=-1)
+
+
+def rotvec_to_quat(rotvec: np.ndarray) -> np.ndarray:
+    """Exp: axis-angle (..., 3) -> quaternion (..., 4)."""
+    r = np.asarray(rotvec, dtype=np.float64)
+    return Rotation.from_rotvec(r.reshape(-1, 3)).as_quat().reshape(r.shape[:-1] + (4,))
+
+
+def quat_to_rotvec(q_xyzw: np.ndarray) -> np.ndarray:
+    """Log: quaternion (..., 4) -> axis-angle (..., 3), angle in [0, pi]."""
+    q = np.asarray(q_xyzw, dtype=np.float64)
+    return Rotation.from_quat(q.reshape(-1, 4)).as_rotvec().reshape(q.shape[:-1] + (3,))
+
+
+def world_delta_rotvec(q_prev_xyzw: np.ndarray, q_next_xyzw: np.ndarray) -> np.ndarray:
+    """World-frame rotation between two orientations: Log(R_next R_prev^T), so R_next = Exp(d) R_prev."""
+    return quat_to_rotvec(quat_multiply(q_next_xyzw, quat_conjugate(q_prev_xyzw)))
+
+
+def tilt_angle(q0_xyzw: np.ndarray, q_xyzw: np.ndarray) -> np.ndarray:
+    """Angle (rad) between world z and the object's initial up direction carried by its rotation since q0.
+
+    The initial up direction is world z at q0; in the body it is R0^T z, and at q it points along
+    R R0^T z. Shapes: q0 (4,) or (..., 4); q (..., 4) -> (...).
+    """
+    rel = quat_to_matrix(quat_multiply(q_xyzw, quat_conjugate(np.broadcast_to(q0_xyzw, np.shape(q_xyzw)))))
+    up_z = np.clip(rel[..., 2, 2], -1.0, 1.0)
+    return np.arccos(up_z)

@@ -1,0 +1,1 @@
+"""Models: shape encoders, state predictors, heads, losses and the LightningModule."""
