@@ -1,0 +1,1 @@
+"""Datasets: the Zarr store, training windows, normalisation and the LightningDataModule."""

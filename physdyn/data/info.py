@@ -1,0 +1,96 @@
+"""A human summary of a store (`physdyn data info`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from physdyn.data.store import SPLIT_NAMES, StoreData
+
+
+def _stats(x: np.ndarray) -> dict:
+    if len(x) == 0:
+        return {}
+    return {"mean": float(np.mean(x)), "median": float(np.median(x)), "min": float(np.min(x)), "max": float(np.max(x))}
+
+
+def summarize(d: StoreData) -> dict:
+    cat_of_sim = d.sim_category()
+    shape_split = np.zeros(d.num_shapes, dtype=int)
+    shape_split[d.shape_id] = d.split
+    lengths = d.lengths()
+    v0 = np.linalg.norm(d.linear_velocity[d.start[:-1]], axis=1)
+    w0 = np.linalg.norm(d.angular_velocity[d.start[:-1]], axis=1)
+    categories = {}
+    for c, name in enumerate(d.category_names):
+        sims = cat_of_sim == c
+        categories[name] = {
+            "shapes": {SPLIT_NAMES[s]: int(np.sum((d.category == c) & (shape_split == s))) for s in SPLIT_NAMES},
+            "sims": {SPLIT_NAMES[s]: int(np.sum(sims & (d.split == s))) for s in SPLIT_NAMES},
+            "topple_fraction": float(np.mean(d.toppled[sims])) if sims.any() else None,
+            "length_steps": _stats(lengths[sims]),
+        }
+    out = {
+        "store": d.url,
+        "rate_hz": d.rate_hz,
+        "shapes": d.num_shapes,
+        "sims": d.num_sims,
+        "frames": int(d.start[-1]),
+        "topple_fraction": float(np.mean(d.toppled)) if d.num_sims else None,
+        "categories": categories,
+        "length_seconds": _stats(lengths / d.rate_hz),
+        "initial_speed_m_s": _stats(v0),
+        "initial_spin_rad_s": _stats(w0),
+        "friction": _stats(d.friction),
+        "mass_kg": _stats(d.mass),
+        "physics": d.attrs.get("physics", {}),
+        "mass_method": d.attrs.get("config", {}).get("mass", {}).get("method", "exact"),
+        "skipped_shapes": len(d.attrs.get("skipped", [])),
+    }
+    if "shapes/exact_mass" in d.extra and out["mass_method"] != "exact":
+        exact = d.extra["shapes/exact_mass"]
+        out["voxel_vs_exact_mass_error"] = _stats(np.abs(d.mass - exact) / exact)
+        if "shapes/exact_inertia_diag" in d.extra:
+            ex_i = d.extra["shapes/exact_inertia_diag"]
+            out["voxel_vs_exact_inertia_error"] = _stats(np.abs(d.inertia_diag - ex_i).max(axis=1) / ex_i.max(axis=1))
+    return out
+
+
+def format_summary(s: dict) -> str:
+    def fmt(st: dict, unit: str = "", digits: int = 2) -> str:
+        if not st:
+            return "-"
+        return (f"mean {st['mean']:.{digits}f}{unit}, median {st['median']:.{digits}f}{unit}, "
+                f"range {st['min']:.{digits}f}-{st['max']:.{digits}f}{unit}")
+
+    lines = [
+        f"store      {s['store']}",
+        f"rate       {s['rate_hz']:g} Hz",
+        f"totals     {s['shapes']} shapes, {s['sims']} simulations, {s['frames']} frames; "
+        f"{100 * (s['topple_fraction'] or 0):.1f} % topple",
+        "",
+        f"{'category':<12} {'shapes train/val/test':>22} {'sims train/val/test':>22} {'topple':>7} {'mean steps':>10}",
+    ]
+    for name, c in s["categories"].items():
+        sh, si = c["shapes"], c["sims"]
+        topple = "-" if c["topple_fraction"] is None else f"{100 * c['topple_fraction']:.1f}%"
+        mean_len = c["length_steps"].get("mean", 0.0)
+        lines.append(f"{name:<12} {sh['train']:>10}/{sh['val']}/{sh['test']:<6} {si['train']:>10}/{si['val']}/{si['test']:<6}"
+                     f" {topple:>7} {mean_len:>10.1f}")
+    lines += [
+        "",
+        f"duration   {fmt(s['length_seconds'], ' s')}",
+        f"v0         {fmt(s['initial_speed_m_s'], ' m/s')}",
+        f"omega0     {fmt(s['initial_spin_rad_s'], ' rad/s')}",
+        f"friction   {fmt(s['friction'], '', 3)} (effective Coulomb coefficient)",
+        f"mass       {fmt(s['mass_kg'], ' kg', 4)} ({s['mass_method']} mass properties)",
+    ]
+    if "voxel_vs_exact_mass_error" in s:
+        lines.append(f"voxel vs exact mass error     {fmt({k: 100 * v for k, v in s['voxel_vs_exact_mass_error'].items()}, ' %')}")
+    if "voxel_vs_exact_inertia_error" in s:
+        lines.append(f"voxel vs exact inertia error  {fmt({k: 100 * v for k, v in s['voxel_vs_exact_inertia_error'].items()}, ' %')}")
+    phys = s["physics"]
+    if phys:
+        lines.append("physics    " + ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in phys.items()))
+    if s["skipped_shapes"]:
+        lines.append(f"skipped    {s['skipped_shapes']} unusable shapes (listed in the store's 'skipped' attribute)")
+    return "\n".join(lines)

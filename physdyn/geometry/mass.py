@@ -1,0 +1,98 @@
+"""Mass properties of a solid of uniform density: exact (from the closed surface) or the paper's voxel estimate."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import trimesh
+
+
+@dataclass
+class MassProperties:
+    """mass (kg); com (3,) in mesh coordinates; inertia (3, 3) about the com, mesh axes (kg m^2)."""
+
+    mass: float
+    com: np.ndarray
+    inertia: np.ndarray
+    volume: float
+    method: str
+
+    def principal(self) -> tuple[np.ndarray, np.ndarray]:
+        """Principal moments (3,) ascending and axes (3, 3) as columns in the mesh frame, det = +1.
+
+        A body-frame vector x_p maps to mesh coordinates as ``axes @ x_p + com``.
+        """
+        moments, axes = np.linalg.eigh(0.5 * (self.inertia + self.inertia.T))
+        if np.linalg.det(axes) < 0:  # eigh may return a reflection; the simulator needs a rotation
+            axes[:, 2] *= -1
+        return np.maximum(moments, 1e-12), axes
+
+
+def exact_mass_properties(mesh: trimesh.Trimesh, density: float) -> MassProperties:
+    """Exact integrals over a watertight mesh (trimesh's divergence-theorem sums; < 1 ms)."""
+    props = mesh.mass_properties  # computed at density 1
+    volume = float(props["volume"])
+    return MassProperties(
+        mass=volume * density,
+        com=np.asarray(props["center_mass"], dtype=np.float64),
+        inertia=np.asarray(props["inertia"], dtype=np.float64) * density,
+        volume=volume,
+        method="exact",
+    )
+
+
+def voxel_pitch(mesh: trimesh.Trimesh, base_pitch: float = 0.025) -> float:
+    """The paper's 2.5 cm cells, refined to 1/40 of the smallest extent so small objects are resolved."""
+    return float(min(base_pitch, mesh.extents.min() / 40.0))
+
+
+def voxel_mass_properties(mesh: trimesh.Trimesh, density: float, base_pitch: float = 0.025) -> MassProperties:
+    """The paper's voxel estimate, done right: a cell counts when its *centre* is inside the solid.
+
+    trimesh's ``voxelized(pitch).fill()`` marks every cell the surface touches as full (+51 % volume on a
+    7 x 6 x 17 cm box at 2.5 cm), so instead vertical rays through the cell-centre columns find the
+    surface crossings, and cells between entry and exit crossings are occupied (even-odd rule).
+    """
+    pitch = voxel_pitch(mesh, base_pitch)
+    lo, hi = mesh.bounds
+    counts = np.maximum(np.ceil((hi - lo) / pitch).astype(int), 1)
+    # Centre the grid on the bounds so symmetric shapes give symmetric occupancy.
+    start = (lo + hi) / 2 - counts * pitch / 2 + pitch / 2
+    xs = start[0] + pitch * np.arange(counts[0])
+    ys = start[1] + pitch * np.arange(counts[1])
+    zs = start[2] + pitch * np.arange(counts[2])
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    origins = np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, lo[2] - pitch)])
+    directions = np.tile([0.0, 0.0, 1.0], (len(origins), 1))
+    hits, ray_idx, _ = mesh.ray.intersects_location(origins, directions, multiple_hits=True)
+    occupied = np.zeros((len(origins), len(zs)), dtype=bool)
+    order = np.lexsort((hits[:, 2], ray_idx))
+    hits_z, ray_idx = hits[order, 2], ray_idx[order]
+    for ray in np.unique(ray_idx):
+        z = np.unique(np.round(hits_z[ray_idx == ray], 9))  # a ray through an edge reports it twice
+        if len(z) % 2:  # grazing hit: decide cell by cell with a containment query instead
+            pts = np.column_stack([np.full(len(zs), origins[ray, 0]), np.full(len(zs), origins[ray, 1]), zs])
+            occupied[ray] = mesh.contains(pts)
+            continue
+        for z0, z1 in z.reshape(-1, 2):
+            occupied[ray] |= (zs >= z0) & (zs <= z1)
+    col, k = np.nonzero(occupied)
+    centres = np.column_stack([origins[col, 0], origins[col, 1], zs[k]])
+    if len(centres) == 0:
+        raise ValueError("no voxel centre lies inside the mesh; it is too thin for voxel mass estimation")
+    cell_mass = density * pitch**3
+    mass = cell_mass * len(centres)
+    com = centres.mean(axis=0)
+    r = centres - com
+    # Point masses at the centres plus each cube's own inertia (m a^2 / 6 about every axis).
+    inertia = cell_mass * (np.eye(3) * np.sum(r * r) - r.T @ r) + np.eye(3) * mass * pitch**2 / 6.0
+    return MassProperties(mass=mass, com=com, inertia=inertia, volume=len(centres) * pitch**3, method="voxel")
+
+
+def mass_properties(mesh: trimesh.Trimesh, density: float, method: str = "exact", voxel_base_pitch: float = 0.025) -> MassProperties:
+    if method == "exact":
+        return exact_mass_properties(mesh, density)
+    if method == "voxel":
+        return voxel_mass_properties(mesh, density, voxel_base_pitch)
+    raise ValueError(f"mass.method must be 'exact' or 'voxel', got '{method}'")

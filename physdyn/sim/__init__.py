@@ -1,0 +1,1 @@
+"""Simulation: the PyBullet world, impulses, trajectory recording and parallel dataset generation."""

@@ -1,0 +1,128 @@
+"""Simulate one push and record the trajectory at the dataset's rate."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pybullet as pb
+
+from physdyn.geometry.rotations import matrix_to_quat, quat_multiply, quat_to_matrix, tilt_angle
+from physdyn.sim.body import RigidBodySpec
+from physdyn.sim.world import PhysicsWorld
+
+TOPPLE_ANGLE = np.deg2rad(45.0)
+
+
+@dataclass
+class InitialCondition:
+    """orientation_xyzw: rotation of the mesh frame in the world before the push.
+    impulse: (3,) N s, world frame; impulse_point: (3,) world point where it acts.
+    friction: effective Coulomb coefficient of the object-ground contact (object x ground lateral)."""
+
+    orientation_xyzw: np.ndarray
+    impulse: np.ndarray
+    impulse_point: np.ndarray
+    friction: float
+
+
+@dataclass
+class Trajectory:
+    """T recorded steps, step 0 immediately after the push (conventions: pose of the mesh frame).
+
+    com_position (T, 3), orientation_xyzw (T, 4), linear_velocity (T, 3), angular_velocity (T, 3),
+    topple_label (T,) bool, topple_step (int, -1 if none).
+    """
+
+    com_position: np.ndarray
+    orientation_xyzw: np.ndarray
+    linear_velocity: np.ndarray
+    angular_velocity: np.ndarray
+    topple_label: np.ndarray
+    topple_step: int
+
+    def __len__(self) -> int:
+        return len(self.com_position)
+
+
+def resting_com_position(spec: RigidBodySpec, orientation_xyzw: np.ndarray) -> np.ndarray:
+    """Where the centre of mass sits when the object rests in this orientation: lowest point on z = 0,
+    centre of mass above the origin."""
+    world_vertices = spec.body_vertices() @ quat_to_matrix(orientation_xyzw).T
+    return np.array([0.0, 0.0, -world_vertices[:, 2].min()])
+
+
+def topple_labels(orientations_xyzw: np.ndarray) -> tuple[np.ndarray, int]:
+    """Per-step labels: 1 from the first step where the initial up direction has tilted past 45 degrees."""
+    tilt = tilt_angle(orientations_xyzw[0], orientations_xyzw)
+    over = np.nonzero(tilt > TOPPLE_ANGLE)[0]
+    step = int(over[0]) if len(over) else -1
+    labels = np.zeros(len(orientations_xyzw), dtype=bool)
+    if step >= 0:
+        labels[step:] = True
+    return labels, step
+
+
+def steps_per_frame(time_step: float, rate_hz: float) -> int:
+    n = 1.0 / (time_step * rate_hz)
+    if abs(n - round(n)) > 1e-6 or round(n) < 1:
+        raise ValueError(f"rate_hz={rate_hz} must divide the physics rate 1/time_step={1 / time_step:g} Hz")
+    return int(round(n))
+
+
+def simulate(world: PhysicsWorld, body: int, spec: RigidBodySpec, init: InitialCondition, rate_hz: float) -> Trajectory:
+    """Place the body at rest, push it for one physics step, record until at rest or the time cap."""
+    phys = world.physics
+    cid = world.client
+    q_mesh0 = np.asarray(init.orientation_xyzw, dtype=np.float64)
+    q_principal = matrix_to_quat(spec.principal_axes)
+    # PyBullet's base frame is the principal frame: R_base = R_mesh @ A.
+    q_base = quat_multiply(q_mesh0, q_principal)
+    com0 = resting_com_position(spec, q_mesh0)
+    pb.resetBasePositionAndOrientation(body, com0.tolist(), q_base.tolist(), physicsClientId=cid)
+    pb.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=cid)
+    world.set_object_friction(body, init.friction / phys.lateral_friction_ground)
+
+    # The push: a force over exactly one physics step, so the ground's reaction acts during it.
+    force = np.asarray(init.impulse, dtype=np.float64) / phys.time_step
+    pb.applyExternalForce(body, -1, force.tolist(), list(map(float, init.impulse_point)), pb.WORLD_FRAME, physicsClientId=cid)
+    pb.stepSimulation(physicsClientId=cid)
+
+    every = steps_per_frame(phys.time_step, rate_hz)
+    max_frames = int(np.floor(phys.max_duration * rate_hz + 1e-9)) + 1
+    rest_steps_needed = int(np.ceil(phys.rest_duration / phys.time_step - 1e-9))
+    v_rest, w_rest = phys.rest_linear_speed, phys.rest_angular_speed
+    q_principal_inv = q_principal * np.array([-1, -1, -1, 1])
+
+    positions, quats, lin, ang = [], [], [], []
+    rest_steps = 0
+    step = 0
+    while True:
+        if step % every == 0:
+            pos, orn = pb.getBasePositionAndOrientation(body, physicsClientId=cid)
+            v, w = pb.getBaseVelocity(body, physicsClientId=cid)
+            positions.append(pos)
+            quats.append(orn)
+            lin.append(v)
+            ang.append(w)
+            if rest_steps >= rest_steps_needed or len(positions) >= max_frames:
+                break
+        pb.stepSimulation(physicsClientId=cid)
+        step += 1
+        v, w = pb.getBaseVelocity(body, physicsClientId=cid)
+        at_rest = (v[0] ** 2 + v[1] ** 2 + v[2] ** 2 < v_rest**2) and (w[0] ** 2 + w[1] ** 2 + w[2] ** 2 < w_rest**2)
+        rest_steps = rest_steps + 1 if at_rest else 0
+
+    # Back from the principal frame to the mesh frame: R_mesh = R_base @ A^T.
+    orientation = quat_multiply(np.asarray(quats), q_principal_inv)
+    orientation /= np.linalg.norm(orientation, axis=1, keepdims=True)
+    orientation = np.where(orientation[:, 3:4] < 0, -orientation, orientation)
+    labels, topple_step = topple_labels(orientation)
+    return Trajectory(
+        com_position=np.asarray(positions, dtype=np.float64),
+        orientation_xyzw=orientation,
+        linear_velocity=np.asarray(lin, dtype=np.float64),
+        angular_velocity=np.asarray(ang, dtype=np.float64),
+        topple_label=labels,
+        topple_step=topple_step,
+    )
