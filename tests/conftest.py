@@ -1,0 +1,42 @@
+"""Shared fixtures: small but real simulated stores, made once per test session."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from physdyn.config import DataConfig, load_config
+
+REPO = Path(__file__).resolve().parents[1]
+QUICKSTART_DATA = REPO / "configs" / "data" / "quickstart.yaml"
+
+# The real quickstart preset shrunk: every category, a few shapes, a few pushes each.
+TINY_OVERRIDES = [f"families.{name}.shapes=5" for name in ("primitives", "bottles", "mugs", "trashcans", "speakers")] + [
+    f"families.{name}.sims_per_shape=6" for name in ("primitives", "bottles", "mugs", "trashcans", "speakers")
+] + ["shapes_per_block=2"]
+
+
+def tiny_data_config(*extra: str) -> DataConfig:
+    return load_config(DataConfig, QUICKSTART_DATA, TINY_OVERRIDES + list(extra))
+
+
+@pytest.fixture(scope="session")
+def tiny_store(tmp_path_factory) -> str:
+    """Path of a complete, real store: 25 shapes over the five categories, 150 simulated pushes."""
+    from physdyn.sim.generate import generate_dataset
+
+    out = tmp_path_factory.mktemp("stores") / "tiny.zarr"
+    generate_dataset(tiny_data_config(), str(out), workers=1, progress=False)
+    return str(out)
+
+
+def run_cli(*args: str, timeout: float = 300, check: bool = False) -> subprocess.CompletedProcess:
+    """Run `physdyn ARGS` as a user would (a fresh process), capturing its output."""
+    proc = subprocess.run([sys.executable, "-m", "physdyn.cli", *args], capture_output=True, text=True,
+                          timeout=timeout, cwd=REPO)
+    if check and proc.returncode != 0:
+        raise AssertionError(f"physdyn {' '.join(args)} failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
+    return proc

@@ -1,0 +1,55 @@
+"""Corrupt, missing or foreign stores are refused with the fix in the message."""
+
+import shutil
+
+import numpy as np
+import pytest
+import zarr
+
+from physdyn.data.store import load_store
+from physdyn.errors import StoreError
+from tests.conftest import run_cli
+
+
+def test_missing_store(tmp_path):
+    with pytest.raises(StoreError, match="no dataset store"):
+        load_store(tmp_path / "nothing.zarr")
+    proc = run_cli("data", "info", str(tmp_path / "nothing.zarr"))
+    assert proc.returncode == 2 and "physdyn simulate" in proc.stderr
+
+
+def test_foreign_zarr_group_is_not_a_store(tmp_path):
+    zarr.open_group(str(tmp_path / "other.zarr"), mode="w").create_array("x", data=np.arange(3))
+    with pytest.raises(StoreError, match="not a physdyn dataset store"):
+        load_store(tmp_path / "other.zarr")
+
+
+def test_missing_array_is_corrupt(tmp_path, tiny_store):
+    copy = tmp_path / "copy.zarr"
+    shutil.copytree(tiny_store, copy)
+    shutil.rmtree(copy / "frames" / "linear_velocity")
+    (copy / "zarr.json").write_text((copy / "zarr.json").read_text())  # keep consolidated metadata stale
+    with pytest.raises(StoreError, match="corrupt"):
+        load_store(copy)
+
+
+def test_inconsistent_offsets_are_corrupt(tmp_path, tiny_store):
+    copy = tmp_path / "copy.zarr"
+    shutil.copytree(tiny_store, copy)
+    g = zarr.open_group(str(copy), mode="r+", use_consolidated=False)
+    start = g["sims/start"][...]
+    start[-1] += 5
+    g["sims/start"][...] = start
+    with pytest.raises(StoreError, match="sims/start"):
+        load_store(copy)
+
+
+def test_data_info_summarises(tiny_store):
+    out = run_cli("data", "info", tiny_store, check=True).stdout
+    for word in ("primitives", "bottles", "mugs", "trashcans", "speakers", "topple", "v0", "physics"):
+        assert word in out
+    js = run_cli("data", "info", tiny_store, "--json", check=True).stdout
+    import json
+
+    summary = json.loads(js)
+    assert summary["sims"] == 150 and summary["shapes"] == 25
