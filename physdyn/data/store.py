@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import shutil
 import warnings
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
@@ -57,7 +58,9 @@ def _open(url: str | Path, mode: str) -> zarr.Group:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            return zarr.open_group(str(url), mode=mode, zarr_format=3)
+            # fsspec's local filesystem does not create parent folders unless asked.
+            options = {"auto_mkdir": True} if str(url).startswith("file://") else None
+            return zarr.open_group(str(url), mode=mode, zarr_format=3, storage_options=options)
     except (FileNotFoundError, zarr.errors.GroupNotFoundError):
         raise StoreError(f"no dataset store at {url}; create one with `physdyn simulate`") from None
     except Exception as exc:
@@ -167,13 +170,25 @@ class StoreWriter:
             _write_array(self.group, key, value)
         for name, extra in (group_attrs or {}).items():
             self.group[name].attrs.update(_jsonable(extra))
-        self.group.attrs.update({**_jsonable(attrs), "arrays_written": True})
+        # A missing chunk reads back as fill values without any error: checksums make corruption visible.
+        checksums = {key: checksum(value) for key, value in arrays.items()}
+        self.group.attrs.update({**_jsonable(attrs), "checksums": checksums, "arrays_written": True})
         if PARTS in self.group:
             del self.group[PARTS]
         self.group.attrs["complete"] = True
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             zarr.consolidate_metadata(self.group.store)
+
+
+def checksum(data: np.ndarray) -> str:
+    """CRC-32 of an array's values (strings by their UTF-8 text), as 8 hex digits."""
+    data = np.asarray(data)
+    if data.dtype.kind in "UOT":
+        raw = "\x00".join(str(v) for v in data.ravel()).encode()
+    else:
+        raw = np.ascontiguousarray(data).tobytes()
+    return f"{zlib.crc32(raw):08x}"
 
 
 def _as_unicode(data: np.ndarray) -> np.ndarray:
@@ -271,6 +286,11 @@ def load_store(url: str | Path) -> StoreData:
     missing = [k for k in SCHEMA if k not in data]
     if missing:
         raise StoreError(f"{url} is corrupt: missing arrays {', '.join(missing)}; regenerate it with --overwrite")
+    for name, expected in attrs.get("checksums", {}).items():
+        if name not in data:
+            raise StoreError(f"{url} is corrupt: array {name} is missing; regenerate it with --overwrite")
+        if checksum(data[name]) != expected:
+            raise StoreError(f"{url} is corrupt: array {name} does not match its checksum; regenerate it with --overwrite")
     shapes_attrs = dict(group["shapes"].attrs)
     out = StoreData(
         url=str(url),

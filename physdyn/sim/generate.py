@@ -148,8 +148,8 @@ def prepare_shape(cfg: DataConfig, family, task: ShapeTask) -> dict:
         props = mass_properties(mesh, cfg.mass.density, cfg.mass.method, cfg.mass.voxel_pitch)
         exact = exact_mass_properties(mesh, cfg.mass.density) if cfg.mass.method != "exact" else props
     else:
+        # prepare_mesh's warning already tells the user the hull is used.
         props = exact = exact_mass_properties(mesh.convex_hull, cfg.mass.density)
-        notes.append(f"{instance.source}: not watertight after repair; mass properties of its convex hull used")
     if not np.isfinite(props.mass) or props.mass <= 0:
         raise ShapeError(f"{instance.source}: non-positive volume; check the mesh is a closed solid")
     spec = RigidBodySpec.from_mesh(mesh, props)
@@ -349,17 +349,26 @@ def generate_dataset(cfg: DataConfig, out: str, workers: int = 1, executor: str 
 
 def assign_splits(categories: np.ndarray, cfg: DataConfig) -> np.ndarray:
     """Split shapes per category, deterministically from the seed: 20 % test, then 10 % of the rest
-    validation, the remainder train. Returns (S,) int8: 0 train, 1 val, 2 test."""
+    validation, the remainder train (at least one test and one validation shape per category of three or
+    more). Returns (S,) int8: 0 train, 1 val, 2 test."""
     rng = np.random.default_rng(np.random.SeedSequence([cfg.seed, zlib.crc32(b"split")]))
     split = np.zeros(len(categories), dtype=np.int8)
     for cat in np.unique(categories):
         ids = np.nonzero(categories == cat)[0]
         ids = ids[rng.permutation(len(ids))]
-        n_test = int(round(cfg.split.test_fraction * len(ids)))
-        n_val = int(round(cfg.split.val_fraction * (len(ids) - n_test)))
+        n_test = _split_count(cfg.split.test_fraction, len(ids), minimum=1 if len(ids) >= 3 else 0)
+        n_val = _split_count(cfg.split.val_fraction, len(ids) - n_test, minimum=1 if len(ids) - n_test >= 2 else 0)
         split[ids[:n_test]] = 2
         split[ids[n_test : n_test + n_val]] = 1
     return split
+
+
+def _split_count(fraction: float, n: int, minimum: int) -> int:
+    """round(fraction x n), but at least ``minimum`` when the fraction is positive: a small category still
+    gets a validation and a test shape, or training would have nothing to select its checkpoint on."""
+    if fraction <= 0:
+        return 0
+    return max(int(round(fraction * n)), minimum)
 
 
 def _finalize(cfg: DataConfig, writer, num_blocks: int, categories: list[str]) -> GenerationReport:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pybullet as pb
+from physdyn.sim.bullet import pb
 
 from physdyn.geometry.rotations import matrix_to_quat, quat_multiply, quat_to_matrix, tilt_angle
 from physdyn.sim.body import RigidBodySpec

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-import pybullet as pb
+from physdyn.sim.bullet import pb
 
 from physdyn.config import PhysicsConfig
 from physdyn.sim.body import RigidBodySpec

@@ -27,9 +27,17 @@ def test_foreign_zarr_group_is_not_a_store(tmp_path):
 def test_missing_array_is_corrupt(tmp_path, tiny_store):
     copy = tmp_path / "copy.zarr"
     shutil.copytree(tiny_store, copy)
-    shutil.rmtree(copy / "frames" / "linear_velocity")
-    (copy / "zarr.json").write_text((copy / "zarr.json").read_text())  # keep consolidated metadata stale
-    with pytest.raises(StoreError, match="corrupt"):
+    shutil.rmtree(copy / "frames" / "linear_velocity")  # the consolidated metadata still lists it
+    with pytest.raises(StoreError, match="corrupt.*linear_velocity"):
+        load_store(copy)
+
+
+def test_lost_chunk_is_corrupt(tmp_path, tiny_store):
+    copy = tmp_path / "copy.zarr"
+    shutil.copytree(tiny_store, copy)
+    chunk = next(p for p in (copy / "frames" / "com_position" / "c").rglob("*") if p.is_file())
+    chunk.unlink()  # zarr would read fill values here without complaint
+    with pytest.raises(StoreError, match="com_position does not match its checksum"):
         load_store(copy)
 
 

@@ -2,3 +2,15 @@
 
 Importing this package registers the built-ins.
 """
+
+from physdyn.geometry.families import (  # noqa: F401  (imported to register)
+    bottles,
+    meshes,
+    mugs,
+    primitives,
+    speakers,
+    trashcans,
+)
+from physdyn.geometry.families.base import ShapeFamily, ShapeInstance
+
+__all__ = ["ShapeFamily", "ShapeInstance"]

@@ -1,0 +1,212 @@
+"""Reading mesh files: every supported format, scaling, and a one-line ShapeError naming the file for
+each kind of bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from physdyn.errors import ShapeError
+from physdyn.geometry.mesh_io import MESH_EXTENSIONS, PreparedMesh, load_mesh, prepare_mesh
+
+EXTENTS = np.array([0.1, 0.2, 0.3])
+
+
+@pytest.mark.parametrize("ext", [e.lstrip(".") for e in MESH_EXTENSIONS])
+def test_loads_every_format_and_applies_scale(tmp_path, ext):
+    path = tmp_path / f"box.{ext}"
+    trimesh.creation.box(extents=EXTENTS).export(path)
+    mesh = load_mesh(path)
+    np.testing.assert_allclose(mesh.extents, EXTENTS, rtol=1e-6)
+    assert mesh.is_watertight and np.isclose(mesh.volume, np.prod(EXTENTS), rtol=1e-5)
+    scaled = load_mesh(str(path), scale=2.5)
+    np.testing.assert_allclose(scaled.extents, 2.5 * EXTENTS, rtol=1e-6)
+
+
+def test_uppercase_extension_is_accepted(tmp_path):
+    path = tmp_path / "BOX.OBJ"
+    trimesh.creation.box(extents=EXTENTS).export(path, file_type="obj")
+    assert load_mesh(path).is_volume
+
+
+def test_a_scene_is_baked_into_one_mesh(tmp_path):
+    scene = trimesh.Scene()
+    scene.add_geometry(trimesh.creation.box(extents=(0.1, 0.1, 0.1)), node_name="a")
+    moved = trimesh.transformations.translation_matrix([0.3, 0.0, 0.0])
+    scene.add_geometry(trimesh.creation.box(extents=(0.1, 0.1, 0.1)), node_name="b", transform=moved)
+    path = tmp_path / "scene.glb"
+    scene.export(path)
+    mesh = load_mesh(path)
+    assert mesh.body_count == 2
+    np.testing.assert_allclose(mesh.extents, [0.4, 0.1, 0.1], rtol=1e-6)  # node transform applied
+
+
+def _write(path, content):
+    if isinstance(content, bytes):
+        path.write_bytes(content)
+    else:
+        path.write_text(content)
+    return path
+
+
+TETRA_NAN = "v 0 0 0\nv 0.1 0 0\nv 0 nan 0\nv 0 0 0.1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n"
+TETRA_INF = TETRA_NAN.replace("nan", "inf")
+FLAT = "v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0.1 0.1 0\nf 1 2 3\nf 2 4 3\nf 1 3 2\nf 2 3 4\n"
+LINE = "v 0 0 0\nv 0.1 0 0\nv 0.2 0 0\nf 1 2 3\n"
+POINTS_ONLY = "v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\n"
+
+BAD_FILES = {
+    "empty.obj": ("", "empty file"),
+    "garbage.stl": (bytes(range(256)) * 3, "no triangles"),
+    "garbage.ply": (b"\x00\x01 not a ply file at all" * 10, "could not be read"),
+    "garbage.glb": (b"glTF\x02\x00\x00\x00" + b"\xff" * 40, "could not be read"),
+    "garbage.off": ("this is not\nan OFF file\n", "could not be read"),
+    "points.obj": (POINTS_ONLY, "no triangles"),
+    "nan.obj": (TETRA_NAN, "NaN or infinite"),
+    "inf.obj": (TETRA_INF, "NaN or infinite"),
+    "flat.obj": (FLAT, "zero volume"),
+    "line.obj": (LINE, "zero volume"),
+    "model.fbx": ("anything", "unsupported format"),
+    "noext": ("anything", "unsupported format"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(BAD_FILES))
+def test_bad_file_gives_one_line_shape_error_naming_it(tmp_path, name):
+    content, problem = BAD_FILES[name]
+    path = _write(tmp_path / name, content)
+    with pytest.raises(ShapeError) as err:
+        load_mesh(path)
+    message = str(err.value)
+    assert str(path) in message and problem in message
+    assert "\n" not in message
+
+
+def test_missing_file(tmp_path):
+    path = tmp_path / "nowhere" / "cup.obj"
+    with pytest.raises(ShapeError, match="not found") as err:
+        load_mesh(path)
+    assert str(path) in str(err.value)
+
+
+def test_a_folder_is_not_a_mesh(tmp_path):
+    folder = tmp_path / "cup.obj"
+    folder.mkdir()
+    with pytest.raises(ShapeError, match="not a file"):
+        load_mesh(folder)
+
+
+@pytest.mark.parametrize("extents, scale", [((100.0, 100.0, 100.0), 1.0), ((0.5, 0.5, 0.5), 0.001)])
+def test_absurd_size_asks_for_a_scale(tmp_path, extents, scale):
+    path = tmp_path / "box.stl"
+    trimesh.creation.box(extents=extents).export(path)
+    with pytest.raises(ShapeError, match="pass a scale") as err:
+        load_mesh(path, scale=scale)
+    assert str(path) in str(err.value)
+
+
+def test_millimetre_file_loads_with_a_scale(tmp_path):
+    path = tmp_path / "box_mm.stl"
+    trimesh.creation.box(extents=(100.0, 200.0, 300.0)).export(path)
+    np.testing.assert_allclose(load_mesh(path, scale=0.001).extents, EXTENTS, rtol=1e-6)
+
+
+@pytest.mark.parametrize("scale", [0.0, -1.0, float("nan")])
+def test_bad_scale(tmp_path, scale):
+    path = tmp_path / "box.obj"
+    trimesh.creation.box(extents=EXTENTS).export(path)
+    with pytest.raises(ShapeError, match="scale"):
+        load_mesh(path, scale=scale)
+
+
+# --------------------------------------------------------------------------------------------------
+# prepare_mesh
+# --------------------------------------------------------------------------------------------------
+def _two_cubes_sharing_an_edge() -> trimesh.Trimesh:
+    a = trimesh.creation.box(bounds=[[0.0, 0.0, 0.0], [0.1, 0.1, 0.1]])
+    b = trimesh.creation.box(bounds=[[0.1, 0.1, 0.0], [0.2, 0.2, 0.1]])
+    return trimesh.util.concatenate([a, b])
+
+
+def test_non_manifold_file_loads_and_prepares_without_crashing(tmp_path):
+    path = tmp_path / "two_cubes.obj"
+    _two_cubes_sharing_an_edge().export(path)
+    mesh = load_mesh(path)
+    prepared = prepare_mesh(mesh, str(path))
+    assert isinstance(prepared, PreparedMesh)
+    # Four faces meet at the shared edge: not a 2-manifold, so exact mass properties are not trusted.
+    assert not prepared.watertight
+    assert any(str(path) in w and "convex hull" in w for w in prepared.warnings)
+
+
+def test_duplicated_face_is_removed(tmp_path):
+    cube = trimesh.creation.box(extents=EXTENTS)
+    faces = np.vstack([cube.faces, cube.faces[:1]])
+    path = tmp_path / "dup.obj"
+    trimesh.Trimesh(cube.vertices, faces, process=False).export(path)
+    mesh = load_mesh(path)
+    assert not mesh.is_watertight  # the duplicate makes one edge appear three times
+    prepared = prepare_mesh(mesh, str(path))
+    assert prepared.watertight and len(prepared.mesh.faces) == 12
+    assert np.isclose(prepared.mesh.volume, np.prod(EXTENTS))
+    assert any("duplicate" in w for w in prepared.warnings)
+
+
+def test_inverted_winding_is_fixed():
+    cube = trimesh.creation.box(extents=EXTENTS)
+    cube.invert()
+    before = cube.faces.copy()
+    prepared = prepare_mesh(cube, "inverted cube")
+    assert prepared.watertight and prepared.mesh.volume > 0
+    np.testing.assert_array_equal(cube.faces, before)  # the input is left alone
+
+
+def test_split_vertices_and_a_small_hole_are_repaired():
+    cube = trimesh.creation.box(extents=EXTENTS)
+    corners = cube.vertices[cube.faces].reshape(-1, 3)  # three private vertices per triangle, as in STL
+    soup = trimesh.Trimesh(corners, np.arange(36).reshape(-1, 3), process=False)
+    prepared = prepare_mesh(soup, "triangle soup")
+    assert prepared.watertight and not prepared.warnings
+    open_box = trimesh.Trimesh(cube.vertices, cube.faces[1:], process=False)  # one triangle missing
+    prepared = prepare_mesh(open_box, "open box")
+    assert prepared.watertight
+    assert np.isclose(prepared.mesh.volume, np.prod(EXTENTS))
+    assert any("filled holes" in w for w in prepared.warnings)
+
+
+def test_open_surface_falls_back_with_a_warning():
+    # A sphere with its top cut off: fill_holes closes only triangle and quad holes, so this stays open.
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.1)
+    bowl = trimesh.Trimesh(sphere.vertices, sphere.faces[sphere.triangles_center[:, 2] < 0.05])
+    prepared = prepare_mesh(bowl, "bowl.stl")
+    assert not prepared.watertight
+    assert any("bowl.stl" in w and "convex hull" in w for w in prepared.warnings)
+
+
+def test_prepare_rejects_zero_volume_and_non_finite():
+    # A closed but flat mesh: a square, both sides. Every edge is shared twice, yet there is no volume.
+    v = np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0], [0.1, 0.1, 0]], float)
+    f = np.array([[0, 1, 2], [1, 3, 2]])
+    flat = trimesh.Trimesh(v, np.vstack([f, f[:, ::-1]]), process=False)
+    with pytest.raises(ShapeError, match="flat sheet") as err:
+        prepare_mesh(flat, "sheet.obj")
+    assert "sheet.obj" in str(err.value)
+    cube = trimesh.creation.box(extents=EXTENTS)
+    vertices = cube.vertices.copy()
+    vertices[3] = np.nan
+    bad = trimesh.Trimesh(vertices, cube.faces, process=False)
+    with pytest.raises(ShapeError, match="NaN"):
+        prepare_mesh(bad, "nan cube")
+    with pytest.raises(ShapeError, match="no faces"):
+        prepare_mesh(trimesh.Trimesh(), "nothing")
+
+
+def test_prepared_procedural_shapes_stay_watertight():
+    from physdyn.registry import SHAPE_FAMILIES
+
+    for name in ("mugs", "trashcans"):
+        inst = SHAPE_FAMILIES.build(name).make(0, np.random.default_rng(0))
+        prepared = prepare_mesh(inst.mesh, inst.source)
+        assert prepared.watertight
+        assert np.isclose(prepared.mesh.volume, inst.mesh.volume)
