@@ -47,8 +47,9 @@ def main(argv: list[str] | None = None) -> int:
     except PhysdynError as exc:
         print(f"physdyn {args.command}: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"physdyn {args.command}: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        detail = f": {exc}" if str(exc) else ""
+        print(f"physdyn {args.command}: interrupted{detail}", file=sys.stderr)
         return 130
 
 

@@ -89,6 +89,16 @@ def remove_store(url: str | Path) -> None:
         Path(url).unlink()
 
 
+def _is_physdyn_store(url: str | Path) -> bool:
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            group = zarr.open_group(str(url), mode="r", zarr_format=3)
+        return group.attrs.get("physdyn_format") is not None
+    except Exception:
+        return False
+
+
 def _write_array(group: zarr.Group, name: str, data: np.ndarray) -> None:
     data = np.asarray(data)
     kind = SCHEMA.get(name, ((), str(data.dtype)))[1]
@@ -122,6 +132,8 @@ class StoreWriter:
                     f"{url} already exists; pass --resume to continue an interrupted run, "
                     f"--overwrite to replace it, or choose another --out"
                 )
+            if not _is_physdyn_store(url):
+                raise StoreError(f"{url} exists and is not a physdyn store; refusing to delete it, choose another --out")
             remove_store(url)
         group = _open(url, "w")
         group.attrs.update({**_jsonable(attrs), "physdyn_format": FORMAT_VERSION, "complete": False})

@@ -118,6 +118,33 @@ def test_existing_store_is_never_overwritten_without_flag(tmp_path, tiny_store):
     assert not np.array_equal(load_store(out).points, load_store(tiny_store).points[: len(load_store(out).points)])
 
 
+def test_overwrite_never_deletes_a_folder_that_is_not_a_store(tmp_path):
+    precious = tmp_path / "thesis"
+    precious.mkdir()
+    (precious / "chapter1.tex").write_text("months of work")
+    with pytest.raises(StoreError, match="not a physdyn store"):
+        generate_dataset(small_config(), str(precious), overwrite=True, progress=False)
+    assert (precious / "chapter1.tex").read_text() == "months of work"
+
+
+def test_ctrl_c_leaves_a_resumable_store_and_says_so(tmp_path):
+    out = tmp_path / "int.zarr"
+    cmd = [sys.executable, "-m", "physdyn.cli", "simulate", "--config", "configs/data/quickstart.yaml",
+           "--out", str(out), "--workers", "2", "--quiet", *TINY_OVERRIDES, "shapes_per_block=1",
+           "families.speakers.sims_per_shape=60"]
+    proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    deadline = time.time() + 120
+    while time.time() < deadline and (not (out / PARTS).exists() or len(list((out / PARTS).iterdir())) < 2):
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C sends to the terminal's process group
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130
+    assert "--resume" in err.strip().splitlines()[-1]
+    with pytest.raises(StoreError, match="incomplete"):
+        load_store(out)
+
+
 def test_resume_with_a_different_config_is_refused(tmp_path):
     out = tmp_path / "x.zarr"
     generate_dataset(small_config(), str(out), progress=False)
