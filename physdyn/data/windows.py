@@ -1,0 +1,141 @@
+"""Training windows: T consecutive steps of one simulation, with per-step targets.
+
+Step t of a window carries the inputs at step t (world-frame ``v_t``, ``w_t``) and the change to step t+1:
+``dv = v_{t+1} - v_t``, ``dw = w_{t+1} - w_t``, ``dp = p_{t+1} - p_t`` and the world-frame rotation
+``dtheta = Log(R_{t+1} R_t^T)`` (so ``R_{t+1} = Exp(dtheta) R_t``), plus the topple label of step t+1.
+A window running past the end of its simulation repeats the last (resting) frame: zero changes, last
+topple label. The point cloud is the shape's body-frame cloud rotated into the world orientation of the
+window's first step (``R @ p``: the body frame is the mesh frame moved to the centre of mass).
+
+Everything per frame is computed once (``FrameTargets``), so a batch of windows is a few fancy-index
+gathers — no per-item Python loops and no store reads during training.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from physdyn.data.store import StoreData
+from physdyn.geometry.rotations import world_delta_rotvec
+
+WINDOW_KEYS = (
+    "points", "linear_velocity", "angular_velocity", "delta_linear_velocity", "delta_angular_velocity",
+    "delta_position", "delta_rotation", "topple_label", "valid", "com_position0", "orientation0_xyzw",
+    "sim", "start",
+)
+
+
+@dataclass
+class FrameTargets:
+    """Per-frame change to the next frame of the same simulation (zero on each simulation's last frame).
+
+    delta_linear_velocity, delta_angular_velocity, delta_position, delta_rotation: (F, 3) float64
+    next_topple_label: (F,) bool, the label of frame f+1 (of f itself on a simulation's last frame)
+    """
+
+    delta_linear_velocity: np.ndarray
+    delta_angular_velocity: np.ndarray
+    delta_position: np.ndarray
+    delta_rotation: np.ndarray
+    next_topple_label: np.ndarray
+
+
+def frame_targets(store: StoreData) -> FrameTargets:
+    F = len(store.com_position)
+    nxt = np.arange(1, F + 1)
+    last = store.start[1:] - 1  # each simulation's last frame has no next frame: it maps to itself
+    nxt[last] = last
+    q = store.orientation_xyzw
+    return FrameTargets(
+        delta_linear_velocity=store.linear_velocity[nxt] - store.linear_velocity,
+        delta_angular_velocity=store.angular_velocity[nxt] - store.angular_velocity,
+        delta_position=store.com_position[nxt] - store.com_position,
+        delta_rotation=np.where((nxt == np.arange(F))[:, None], 0.0, world_delta_rotvec(q, q[nxt])),
+        next_topple_label=store.topple_label[nxt].astype(bool),
+    )
+
+
+def quat_to_matrix_fast(q_xyzw: np.ndarray) -> np.ndarray:
+    """(..., 4) unit quaternions (x, y, z, w) -> (..., 3, 3) rotation matrices (no SciPy object overhead)."""
+    q = np.asarray(q_xyzw, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    x, y, z, w = np.moveaxis(q, -1, 0)
+    return np.stack(
+        [
+            1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
+            2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
+            2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y),
+        ],
+        axis=-1,
+    ).reshape(q.shape[:-1] + (3, 3))
+
+
+def world_oriented_points(points_body: np.ndarray, orientation_xyzw: np.ndarray) -> np.ndarray:
+    """points_body: (..., N, 3) body frame; orientation_xyzw: (..., 4) of the mesh frame -> (..., N, 3) R @ p."""
+    R = quat_to_matrix_fast(orientation_xyzw)
+    return np.einsum("...ij,...nj->...ni", R, points_body)
+
+
+def subsample_indices(num_available: int, num_points: int | None, rng: np.random.Generator, batch: int) -> np.ndarray | None:
+    """(batch, num_points) random point indices without replacement, or None to keep every point."""
+    if num_points is None or num_points >= num_available:
+        return None
+    return np.argsort(rng.random((batch, num_available)), axis=1)[:, :num_points]
+
+
+class WindowSource:
+    """Gathers batches of windows from an in-memory store.
+
+    ``window``: steps per window (T). Arrays returned by ``gather`` (B = len(sims)):
+    points (B, N, 3) float32 world-oriented body frame; linear_velocity, angular_velocity and the four
+    ``delta_*`` (B, T, 3) float32; topple_label (B, T) float32 (label of step t+1); valid (B, T) bool
+    (False where step t+1 is padding); com_position0 (B, 3), orientation0_xyzw (B, 4) float64 (pose at
+    the window's first step); sim, start (B,) int64.
+    """
+
+    def __init__(self, store: StoreData, window: int, num_points: int | None = None):
+        if window < 1:
+            raise ValueError(f"window must be at least 1 step, got {window}")
+        self.store = store
+        self.window = int(window)
+        self.num_points = num_points
+        self.targets = frame_targets(store)
+        self.lengths = store.lengths()
+
+    def max_start(self, sims: np.ndarray) -> np.ndarray:
+        """Largest start per simulation that keeps a window of real transitions (0 for short simulations)."""
+        return np.maximum(self.lengths[sims] - 1 - self.window, 0)
+
+    def random_starts(self, sims: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        return (rng.random(len(sims)) * (self.max_start(sims) + 1)).astype(np.int64)
+
+    def gather(self, sims: np.ndarray, starts: np.ndarray, point_index: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        s = self.store
+        sims = np.asarray(sims, dtype=np.int64)
+        starts = np.asarray(starts, dtype=np.int64)
+        steps = starts[:, None] + np.arange(self.window)[None, :]  # (B, T)
+        length = self.lengths[sims][:, None]
+        frames = s.start[sims][:, None] + np.minimum(steps, length - 1)
+        first = s.start[sims] + np.minimum(starts, length[:, 0] - 1)
+        shape_points = s.points[s.shape_id[sims]]  # (B, N, 3)
+        if point_index is not None:
+            shape_points = np.take_along_axis(shape_points, point_index[..., None], axis=1)
+        t = self.targets
+        f32 = np.float32
+        return {
+            "points": world_oriented_points(shape_points, s.orientation_xyzw[first]).astype(f32),
+            "linear_velocity": s.linear_velocity[frames].astype(f32),
+            "angular_velocity": s.angular_velocity[frames].astype(f32),
+            "delta_linear_velocity": t.delta_linear_velocity[frames].astype(f32),
+            "delta_angular_velocity": t.delta_angular_velocity[frames].astype(f32),
+            "delta_position": t.delta_position[frames].astype(f32),
+            "delta_rotation": t.delta_rotation[frames].astype(f32),
+            "topple_label": t.next_topple_label[frames].astype(f32),
+            "valid": steps < length - 1,
+            "com_position0": s.com_position[first],
+            "orientation0_xyzw": s.orientation_xyzw[first],
+            "sim": sims,
+            "start": starts,
+        }

@@ -1,0 +1,248 @@
+"""The LightningModule: shape encoder + state predictor + head, trained on windows of a store.
+
+Inputs and outputs of the public methods are in SI units; the model normalises with the scales it was
+trained with (saved in its hyper-parameters, so ``DynamicsModel.load_from_checkpoint(path)`` restores the
+config, the normalisation and the weights). The loss is computed in normalised units.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from lightning import LightningModule
+
+from physdyn.config import ExperimentConfig, config_from_dict, to_dict
+from physdyn.data.normalization import Normalization
+from physdyn.errors import ConfigError
+from physdyn.models.losses import dynamics_loss
+from physdyn.registry import ENCODERS, HEADS, PREDICTORS
+
+DELTA_KEYS = ("delta_linear_velocity", "delta_angular_velocity", "delta_position", "delta_rotation")
+
+
+@dataclass
+class DynamicsPrediction:
+    """Predicted changes from step t to t+1, SI units, world frame.
+
+    delta_linear_velocity, delta_angular_velocity, delta_position, delta_rotation: (B, T, 3) for
+    ``predict_window`` or (B, 3) for ``step``; ``delta_rotation`` is world-frame axis-angle
+    (R_{t+1} = Exp(delta_rotation) R_t). topple_probability: (B, T) or (B,), None without a topple head.
+    state: the predictor's recurrent state after the last step (pass it to the next call).
+    """
+
+    delta_linear_velocity: torch.Tensor
+    delta_angular_velocity: torch.Tensor
+    delta_position: torch.Tensor
+    delta_rotation: torch.Tensor
+    topple_probability: torch.Tensor | None
+    state: Any = None
+
+    def to_numpy(self) -> dict[str, np.ndarray | None]:
+        out: dict[str, np.ndarray | None] = {k: getattr(self, k).detach().cpu().numpy() for k in DELTA_KEYS}
+        tp = self.topple_probability
+        out["topple_probability"] = None if tp is None else tp.detach().cpu().numpy()
+        return out
+
+
+def learning_rate_factor(
+    schedule: str, step: int, total_steps: float, lr: float, lr_min: float, decay_rate: float = 0.75, decay_every_steps: float = 1.0
+) -> float:
+    """Multiplier of ``lr`` at optimiser step ``step``, never below ``lr_min / lr``.
+
+    exponential: lr -> lr_min geometrically over ``total_steps`` (the planned steps);
+    step: x ``decay_rate`` every ``decay_every_steps`` steps (the paper's 0.75 per 300,000 sequences);
+    constant: 1.
+    """
+    floor = lr_min / lr
+    if schedule == "exponential":
+        return max(floor ** (min(step, total_steps) / total_steps), floor)
+    if schedule == "step":
+        return max(decay_rate ** math.floor(step / decay_every_steps), floor)
+    return 1.0
+
+
+@contextlib.contextmanager
+def _inference(module: torch.nn.Module):
+    """Eval mode (batch norm uses its running statistics) and no gradients; restores the previous mode."""
+    was_training = module.training
+    module.eval()
+    try:
+        with torch.no_grad():
+            yield
+    finally:
+        module.train(was_training)
+
+
+class DynamicsModel(LightningModule):
+    """Predicts per-step state changes and topple probabilities of a pushed rigid object.
+
+    config: an ``ExperimentConfig`` or its dict; normalization: a ``Normalization`` or its dict (from the
+    training split); data_info: facts about the training data evaluation code needs (``rate_hz``,
+    ``window``, ``num_points``, ``category_names``, ``store``).
+    """
+
+    def __init__(self, config: dict | ExperimentConfig, normalization: dict | Normalization, data_info: dict | None = None):
+        super().__init__()
+        cfg = config if isinstance(config, ExperimentConfig) else config_from_dict(ExperimentConfig, config)
+        norm = normalization if isinstance(normalization, Normalization) else Normalization.from_dict(normalization)
+        self.save_hyperparameters({"config": to_dict(cfg), "normalization": norm.to_dict(), "data_info": dict(data_info or {})})
+        self.config = cfg
+        self.normalization = norm
+        m = cfg.model
+        self.encoder = ENCODERS.build(m.encoder.name, m.encoder.params, "model.encoder.params")
+        input_dim = 6 + int(self.encoder.out_dim)
+        self.predictor = PREDICTORS.build(m.predictor.name, m.predictor.params, "model.predictor.params", input_dim=input_dim)
+        self.head = HEADS.build(m.head.name, m.head.params, "model.head.params", in_dim=int(self.predictor.out_dim))
+        self.register_buffer("change_scale", torch.tensor(norm.change_scales(), dtype=torch.float32))
+        self.register_buffer("velocity_scale", torch.tensor([norm.linear_velocity] * 3 + [norm.angular_velocity] * 3, dtype=torch.float32))
+        self.register_buffer("point_scale", torch.tensor(norm.points, dtype=torch.float32))
+        self.loss_config = cfg.loss
+
+    # ------------------------------------------------------------------ facts
+    @property
+    def predicts_topple(self) -> bool:
+        return bool(self.head.predicts_topple)
+
+    @property
+    def data_info(self) -> dict:
+        return dict(self.hparams.get("data_info", {}))
+
+    @property
+    def num_points(self) -> int | None:
+        """Points per cloud the model was trained on (None: all of its store's)."""
+        return self.config.data.num_points
+
+    # ------------------------------------------------------------------ network
+    def encode(self, points: torch.Tensor) -> torch.Tensor:
+        """points: (B, N, 3) world-oriented body frame, metres -> (B, F) shape feature."""
+        return self.encoder(points / self.point_scale)
+
+    def forward(self, feature: torch.Tensor, linear_velocity: torch.Tensor, angular_velocity: torch.Tensor, state: Any = None):
+        """feature (B, F); velocities (B, T, 3) SI, world frame
+        -> (changes (B, T, 12) normalised [dv, dw, dp, dtheta], topple logit (B, T) or None, state)."""
+        T = linear_velocity.shape[1]
+        vel = torch.cat([linear_velocity, angular_velocity], dim=-1) / self.velocity_scale
+        inputs = torch.cat([vel, feature[:, None, :].expand(-1, T, -1)], dim=-1)
+        features, state = self.predictor(inputs, state)
+        changes, logit = self.head(features)
+        return changes, logit, state
+
+    def _as_tensor(self, x: Any) -> torch.Tensor:
+        return torch.as_tensor(np.asarray(x) if not torch.is_tensor(x) else x, dtype=torch.float32, device=self.device)
+
+    def _prediction(self, changes: torch.Tensor, logit: torch.Tensor | None, state: Any) -> DynamicsPrediction:
+        si = changes * self.change_scale
+        return DynamicsPrediction(
+            si[..., 0:3], si[..., 3:6], si[..., 6:9], si[..., 9:12],
+            None if logit is None else torch.sigmoid(logit), state,
+        )
+
+    def predict_window(self, points: Any, linear_velocity: Any, angular_velocity: Any, state: Any = None) -> DynamicsPrediction:
+        """Changes at every step given the true velocities at every step (teacher forcing).
+
+        points: (B, N, 3) world-oriented body frame at the first step (see
+        ``physdyn.data.windows.world_oriented_points``); velocities: (B, T, 3) SI, world frame.
+        Runs in eval mode without gradients; arrays or tensors in, tensors out.
+        """
+        with _inference(self):
+            feature = self.encode(self._as_tensor(points))
+            changes, logit, state = self(feature, self._as_tensor(linear_velocity), self._as_tensor(angular_velocity), state)
+            return self._prediction(changes, logit, state)
+
+    def step(self, feature: torch.Tensor, linear_velocity: Any, angular_velocity: Any, state: Any = None) -> DynamicsPrediction:
+        """One roll-out step: feature (B, F) from ``encode``; velocities (B, 3) at step t; state from the
+        previous step (None at step 0) -> changes to step t+1, each (B, 3), and the new state."""
+        with _inference(self):
+            v = self._as_tensor(linear_velocity)[:, None, :]
+            w = self._as_tensor(angular_velocity)[:, None, :]
+            changes, logit, state = self(self._as_tensor(feature), v, w, state)
+            pred = self._prediction(changes[:, 0], None if logit is None else logit[:, 0], state)
+            return pred
+
+    def encode_points(self, points: Any) -> torch.Tensor:
+        """``encode`` in eval mode without gradients, for roll-outs: (B, N, 3) -> (B, F)."""
+        with _inference(self):
+            return self.encode(self._as_tensor(points))
+
+    # ------------------------------------------------------------------ training
+    def _targets(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        return torch.cat([batch[k] for k in DELTA_KEYS], dim=-1) / self.change_scale
+
+    def compute_loss(self, batch: dict[str, torch.Tensor]):
+        feature = self.encode(batch["points"])
+        changes, logit, _ = self(feature, batch["linear_velocity"], batch["angular_velocity"])
+        lc = self.loss_config
+        return dynamics_loss(
+            changes, self._targets(batch), logit, batch["topple_label"],
+            kind=lc.kind, weights=dict(vars(lc.weights)), eps=lc.eps, rest_threshold=lc.rest_threshold,
+        )
+
+    def _log_terms(self, prefix: str, out, batch_size: int, on_step: bool) -> None:
+        sync = prefix != "train"
+        self.log(f"{prefix}/loss", out.total, prog_bar=True, on_step=on_step, on_epoch=True, batch_size=batch_size, sync_dist=sync)
+        for name, value in out.terms.items():
+            self.log(f"{prefix}/{name}", value, on_step=False, on_epoch=True, batch_size=batch_size, sync_dist=sync)
+
+    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        out = self.compute_loss(batch)
+        self._log_terms("train", out, len(batch["sim"]), on_step=True)
+        return out.total
+
+    def validation_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> None:
+        self._log_terms("val", self.compute_loss(batch), len(batch["sim"]), on_step=False)
+
+    def test_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> None:
+        self._log_terms("test", self.compute_loss(batch), len(batch["sim"]), on_step=False)
+
+    def configure_optimizers(self):
+        o = self.config.optim
+        if o.lr <= 0 or o.lr_min <= 0 or o.lr_min > o.lr:
+            raise ConfigError(f"config key 'optim.lr_min': need 0 < lr_min <= lr, got lr={o.lr}, lr_min={o.lr_min}")
+        optimizer = torch.optim.Adam(self.parameters(), lr=o.lr, weight_decay=o.weight_decay)
+        if o.schedule not in ("exponential", "step", "constant"):
+            raise ConfigError(f"config key 'optim.schedule': unknown '{o.schedule}'; use exponential, step or constant")
+        total = float(self.trainer.estimated_stepping_batches) if self._trainer is not None else math.inf
+        world = self.trainer.world_size if self._trainer is not None else 1
+        if o.schedule == "constant" or (o.schedule == "exponential" and not (math.isfinite(total) and total > 0)):
+            if o.schedule == "exponential":
+                warnings.warn("no planned step count (set trainer.max_steps or max_epochs); the learning rate stays constant", stacklevel=2)
+            return optimizer
+        per_step = self.config.data.batch_size * world
+        factor = lambda step: learning_rate_factor(o.schedule, step, total, o.lr, o.lr_min, o.decay_rate, o.decay_samples / per_step)  # noqa: E731
+        scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, factor)
+        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}
+
+    # ------------------------------------------------------------------ pretrained encoder
+    def load_encoder_weights(self, path: str | Path) -> int:
+        """Copy the tensors of an encoder file from `physdyn pretrain` whose names and shapes match.
+
+        Returns how many were copied; raises ConfigError for a missing file, another encoder kind, or no
+        matching tensor at all. (The paper initialised only the PointNet part: layers whose widths differ,
+        like a different feature size, keep their fresh weights.)
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise ConfigError(f"config key 'model.encoder_init': no file {path}; run `physdyn pretrain` first")
+        saved = torch.load(path, map_location="cpu", weights_only=False)
+        name = saved.get("encoder") if isinstance(saved, dict) else None
+        if name != self.config.model.encoder.name:
+            raise ConfigError(
+                f"config key 'model.encoder_init': {path} holds a '{name}' encoder, the model uses "
+                f"'{self.config.model.encoder.name}'"
+            )
+        own = self.encoder.state_dict()
+        matched = {k: v for k, v in saved["state_dict"].items() if k in own and own[k].shape == v.shape}
+        if not any(not k.endswith("num_batches_tracked") for k in matched):
+            raise ConfigError(f"config key 'model.encoder_init': no tensor of {path} fits this encoder's layer sizes")
+        self.encoder.load_state_dict(matched, strict=False)
+        skipped = len(own) - len(matched)
+        if skipped:
+            warnings.warn(f"{path}: {skipped} encoder tensors differ in size and keep their initial values", stacklevel=2)
+        return len(matched)

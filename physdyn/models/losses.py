@@ -1,0 +1,82 @@
+"""The paper's training loss (method-notes section 3), computed in normalised units.
+
+Per step and quantity, for x in {dv, dw, dp} with prediction x_hat:
+
+    relative_error = ||x_hat - x||_2 / (||x||_2 + ||x_hat||_2 + eps)
+
+and the same with L1 norms for dtheta. Averaged over the window's steps, then over the batch; plus
+``weights.topple`` (2.0) x the per-step sigmoid cross-entropy of the topple logit.
+
+Zero-change guard: the reference code has no epsilon, so a resting or padded step (true change 0) gives
+0/0 when the prediction is also 0, and the constant 1 (no gradient) for any other prediction - nothing
+teaches "stay at rest". Here, on steps whose true change is below ``rest_threshold`` in norm (normalised
+units; padded steps are exactly 0), the term is the absolute error ||x_hat - x|| instead: 0 for a correct
+prediction and a unit-size gradient towards 0 for any wrong one, whatever its size. ``eps`` only keeps the
+relative form finite when ``rest_threshold`` is 0.
+
+``kind="absolute"`` (the real-world model) keeps only the numerators ||x_hat - x|| on every step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+
+QUANTITIES = ("linear_velocity", "angular_velocity", "position", "rotation")  # order in the 12 changes
+
+
+@dataclass
+class LossTerms:
+    total: torch.Tensor
+    terms: dict[str, torch.Tensor]  # per quantity (and "topple"), unweighted batch means
+
+
+def relative_error(pred: torch.Tensor, true: torch.Tensor, p: int = 2, eps: float = 1e-6, rest_threshold: float = 1e-3) -> torch.Tensor:
+    """pred, true: (..., 3) -> (...): ||pred - true||_p / (||true||_p + ||pred||_p + eps), or the absolute
+    error ||pred - true||_p where ||true||_p < rest_threshold (the zero-change guard, see module doc)."""
+    err = torch.linalg.vector_norm(pred - true, ord=p, dim=-1)
+    true_norm = torch.linalg.vector_norm(true, ord=p, dim=-1)
+    rel = err / (true_norm + torch.linalg.vector_norm(pred, ord=p, dim=-1) + eps)
+    return torch.where(true_norm < rest_threshold, err, rel)
+
+
+def absolute_error(pred: torch.Tensor, true: torch.Tensor, p: int = 2) -> torch.Tensor:
+    return torch.linalg.vector_norm(pred - true, ord=p, dim=-1)
+
+
+def dynamics_loss(
+    changes: torch.Tensor,
+    targets: torch.Tensor,
+    topple_logit: torch.Tensor | None = None,
+    topple_label: torch.Tensor | None = None,
+    *,
+    kind: str = "relative",
+    weights: dict[str, float] | None = None,
+    eps: float = 1e-6,
+    rest_threshold: float = 1e-3,
+) -> LossTerms:
+    """changes, targets: (B, T, 12) normalised [dv, dw, dp, dtheta]; topple_logit, topple_label: (B, T).
+
+    ``weights`` maps each of QUANTITIES and "topple" to its weight (default 1, topple 2).
+    """
+    if kind not in ("relative", "absolute"):
+        raise ValueError(f"loss kind must be 'relative' or 'absolute', got '{kind}'")
+    w = {**{q: 1.0 for q in QUANTITIES}, "topple": 2.0, **(weights or {})}
+    terms: dict[str, torch.Tensor] = {}
+    total = changes.new_zeros(())
+    for i, name in enumerate(QUANTITIES):
+        pred, true = changes[..., 3 * i : 3 * i + 3], targets[..., 3 * i : 3 * i + 3]
+        p = 1 if name == "rotation" else 2  # the paper uses L1 norms for the rotation
+        if kind == "relative":
+            per_step = relative_error(pred, true, p, eps, rest_threshold)
+        else:
+            per_step = absolute_error(pred, true, p)
+        terms[name] = per_step.mean(dim=-1).mean()  # over steps, then over the batch
+        total = total + w[name] * terms[name]
+    if topple_logit is not None and topple_label is not None:
+        bce = F.binary_cross_entropy_with_logits(topple_logit, topple_label.to(topple_logit.dtype), reduction="none")
+        terms["topple"] = bce.mean(dim=-1).mean()
+        total = total + w["topple"] * terms["topple"]
+    return LossTerms(total, terms)

@@ -1,0 +1,251 @@
+"""`physdyn fit`: train a DynamicsModel on a store, with checkpoints, logs and resumption.
+
+A run directory (``out_dir``, default ``runs/<name>``) holds ``config.yaml`` (the resolved config),
+``best.ckpt`` (lowest ``val/loss``), ``last.ckpt``, ``csv/metrics.csv``, ``tensorboard/`` and, once training
+ends, ``finished.json``. An existing run directory is never overwritten silently: continue it with
+``resume=True`` (``--resume``) or replace it with ``overwrite=True`` (``--overwrite``).
+"""
+
+from __future__ import annotations
+
+import inspect
+import json
+import os
+import shutil
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from omegaconf import OmegaConf
+
+from physdyn.config import ExperimentConfig, load_config, to_dict
+from physdyn.data.store import StoreData
+from physdyn.errors import ConfigError, PhysdynError
+from physdyn.registry import ENCODERS, HEADS, PREDICTORS
+
+# Trainer arguments physdyn sets itself from other config keys.
+RESERVED_TRAINER_KEYS = {
+    "callbacks": "checkpointing and early stopping are configured by physdyn (see early_stopping.*)",
+    "logger": "physdyn writes CSV and TensorBoard logs into out_dir",
+    "default_root_dir": "set out_dir instead",
+    "enable_checkpointing": "physdyn always writes best.ckpt and last.ckpt",
+    "enable_progress_bar": "set progress_bar instead",
+}
+FINISHED = "finished.json"
+
+
+@dataclass
+class FitResult:
+    best_checkpoint: Path | None  # <out_dir>/best.ckpt (lowest val/loss)
+    last_checkpoint: Path | None  # <out_dir>/last.ckpt
+    out_dir: Path
+    metrics: dict[str, float] = field(default_factory=dict)  # final logged values, plus best_val_loss
+
+
+def trainer_argument_names() -> set[str]:
+    from lightning import Trainer
+
+    return set(inspect.signature(Trainer.__init__).parameters) - {"self"}
+
+
+def validate_trainer_args(trainer: dict[str, Any], section: str = "trainer") -> None:
+    allowed = trainer_argument_names()
+    for key in trainer:
+        if key in RESERVED_TRAINER_KEYS:
+            raise ConfigError(f"config key '{section}.{key}': not settable here; {RESERVED_TRAINER_KEYS[key]}")
+        if key not in allowed:
+            raise ConfigError(f"config key '{section}.{key}': not an argument of lightning.Trainer")
+
+
+def validate_experiment_config(cfg: ExperimentConfig) -> ExperimentConfig:
+    """Check what the schema cannot: component params against their registries, choices, trainer keys."""
+    m = cfg.model
+    for section, registry, comp in (("encoder", ENCODERS, m.encoder), ("predictor", PREDICTORS, m.predictor), ("head", HEADS, m.head)):
+        if not comp.name:
+            raise ConfigError(f"config key 'model.{section}.name': missing; registered: {', '.join(registry.names())}")
+        try:
+            registry.resolve_config(comp.name, comp.params, f"model.{section}.params")
+        except ConfigError as exc:
+            if "unknown" in str(exc) and "registered" in str(exc):
+                raise ConfigError(f"config key 'model.{section}.name': {exc}") from None
+            raise
+    if cfg.loss.kind not in ("relative", "absolute"):
+        raise ConfigError(f"config key 'loss.kind': '{cfg.loss.kind}' is not relative or absolute")
+    if cfg.optim.schedule not in ("exponential", "step", "constant"):
+        raise ConfigError(f"config key 'optim.schedule': '{cfg.optim.schedule}' is not exponential, step or constant")
+    if not 0 < cfg.optim.lr_min <= cfg.optim.lr:
+        raise ConfigError(f"config key 'optim.lr_min': need 0 < lr_min <= lr, got lr_min={cfg.optim.lr_min}, lr={cfg.optim.lr}")
+    for key in ("window", "batch_size", "val_windows_per_sim"):
+        if getattr(cfg.data, key) < 1:
+            raise ConfigError(f"config key 'data.{key}': must be at least 1, got {getattr(cfg.data, key)}")
+    if cfg.data.num_workers < 0:
+        raise ConfigError(f"config key 'data.num_workers': must be >= 0, got {cfg.data.num_workers}")
+    validate_trainer_args(cfg.trainer)
+    return cfg
+
+
+def load_experiment_config(path: str | Path | None, overrides: list[str] | None = None) -> ExperimentConfig:
+    """Load a preset with ``key=value`` overrides and validate it; errors are one-line ConfigErrors."""
+    return validate_experiment_config(load_config(ExperimentConfig, path, overrides))
+
+
+def run_directory(cfg: ExperimentConfig | Any) -> Path:
+    return Path(cfg.out_dir) if cfg.out_dir else Path("runs") / cfg.name
+
+
+def is_global_zero_process() -> bool:
+    """False in the extra processes of a multi-process run (Lightning/torchrun set these variables)."""
+    return all(int(os.environ.get(k, "0") or 0) == 0 for k in ("LOCAL_RANK", "NODE_RANK", "RANK"))
+
+
+def prepare_run_directory(out_dir: Path, resume: bool, overwrite: bool, what: str = "physdyn fit") -> None:
+    """Refuse to reuse a run directory unless asked; only the first process of a run touches it."""
+    if not is_global_zero_process():
+        return
+    if out_dir.exists() and any(out_dir.iterdir()):
+        if overwrite:
+            shutil.rmtree(out_dir)
+        elif not resume:
+            if (out_dir / FINISHED).exists():
+                raise PhysdynError(
+                    f"{out_dir} holds a finished run; pass --overwrite to replace it, or choose another "
+                    f"name=... or out_dir=..."
+                )
+            raise PhysdynError(
+                f"{out_dir} holds an interrupted run; pass --resume to continue it or --overwrite to start over"
+            )
+    out_dir.mkdir(parents=True, exist_ok=True)
+
+
+def save_config_yaml(cfg: Any, path: Path) -> None:
+    if is_global_zero_process():
+        path.write_text(OmegaConf.to_yaml(OmegaConf.create(to_dict(cfg))))
+
+
+def _checkpoint_hparams(path: Path) -> dict:
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:
+        raise PhysdynError(f"cannot read checkpoint {path}: {type(exc).__name__}: {exc}") from None
+    return ckpt.get("hyper_parameters", {})
+
+
+def _progress_bar():
+    from lightning.pytorch.callbacks import TQDMProgressBar
+
+    class ProgressBar(TQDMProgressBar):
+        """Lightning's bar without the logger version ("v_num"), which means nothing for a named run."""
+
+        def get_metrics(self, trainer, pl_module):
+            metrics = super().get_metrics(trainer, pl_module)
+            metrics.pop("v_num", None)
+            return metrics
+
+    return ProgressBar()
+
+
+def build_trainer(cfg_trainer: dict[str, Any], out_dir: Path, callbacks: list, progress_bar: bool, loggers: bool = True):
+    from lightning import Trainer
+    from lightning.pytorch.loggers import CSVLogger, TensorBoardLogger
+
+    validate_trainer_args(cfg_trainer)
+    kwargs = {"log_every_n_steps": 10, **cfg_trainer}
+    callbacks = list(callbacks) + ([_progress_bar()] if progress_bar else [])
+    logger: Any = False
+    if loggers:
+        logger = [CSVLogger(out_dir, name="", version="csv"), TensorBoardLogger(out_dir, name="", version="tensorboard")]
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=".*tensorboardX.*")
+            warnings.filterwarnings("ignore", message=".*exists and is not empty.*")
+            return Trainer(
+                default_root_dir=str(out_dir), callbacks=callbacks, logger=logger,
+                enable_progress_bar=progress_bar, **kwargs,
+            )
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"config key 'trainer': {str(exc).splitlines()[0]}") from None
+    except Exception as exc:  # Lightning's MisconfigurationException and friends
+        if type(exc).__name__.endswith("Exception") or "Misconfiguration" in type(exc).__name__:
+            raise ConfigError(f"config key 'trainer': {str(exc).splitlines()[0]}") from None
+        raise
+
+
+def fit(config: ExperimentConfig, resume: bool = False, overwrite: bool = False, store: StoreData | None = None) -> FitResult:
+    """Train a DynamicsModel as ``config`` says; see the module docstring for the run directory.
+
+    ``resume`` continues from ``<out_dir>/last.ckpt`` (``config.ckpt_path`` from that checkpoint instead);
+    ``store`` skips reading ``config.data.store`` again (tests, notebooks).
+    """
+    import lightning
+    from lightning.pytorch.callbacks import EarlyStopping, LearningRateMonitor, ModelCheckpoint
+
+    from physdyn.data.datamodule import DynamicsDataModule
+    from physdyn.models.dynamics_module import DynamicsModel
+
+    cfg = validate_experiment_config(config)
+    out_dir = run_directory(cfg)
+    ckpt_path: Path | None = Path(cfg.ckpt_path) if cfg.ckpt_path else None
+    if ckpt_path is None and resume:
+        ckpt_path = out_dir / "last.ckpt"
+        if not ckpt_path.is_file():
+            raise PhysdynError(f"--resume: no {ckpt_path} to continue from; start the run without --resume")
+    if ckpt_path is not None and not ckpt_path.is_file():
+        raise ConfigError(f"config key 'ckpt_path': no checkpoint at {ckpt_path}")
+    lightning.seed_everything(cfg.seed, workers=True, verbose=False)
+    datamodule = DynamicsDataModule(cfg.data, store=store)
+    datamodule.setup("fit")  # before touching out_dir: a bad store or category leaves an old run intact
+    prepare_run_directory(out_dir, resume=resume or ckpt_path is not None, overwrite=overwrite and ckpt_path is None)
+    normalization = datamodule.normalization
+    if ckpt_path is not None:  # keep the scales the run started with
+        saved = _checkpoint_hparams(ckpt_path).get("normalization")
+        if saved:
+            from physdyn.data.normalization import Normalization
+
+            normalization = Normalization.from_dict(saved)
+    data_info = {
+        "store": str(cfg.data.store),
+        "rate_hz": datamodule.rate_hz,
+        "window": cfg.data.window,
+        "num_points": cfg.data.num_points,
+        "category_names": list(datamodule.store.category_names),
+        "train_sims": int(len(datamodule.sims.train)),
+        "val_on_train": bool(datamodule.val_uses_train),
+    }
+    model = DynamicsModel(cfg, normalization, data_info)
+    if cfg.model.encoder_init and ckpt_path is None:
+        model.load_encoder_weights(cfg.model.encoder_init)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    save_config_yaml(cfg, out_dir / "config.yaml")
+
+    checkpoint = ModelCheckpoint(
+        dirpath=out_dir, filename="best", monitor="val/loss", mode="min", save_top_k=1, save_last=True,
+        auto_insert_metric_name=False, enable_version_counter=False,
+    )
+    callbacks: list = [checkpoint, LearningRateMonitor(logging_interval="step")]
+    es = cfg.early_stopping
+    if es.enabled:
+        callbacks.append(EarlyStopping(monitor="val/loss", mode="min", patience=es.patience, min_delta=es.min_delta, check_on_train_epoch_end=False))
+    trainer = build_trainer(cfg.trainer, out_dir, callbacks, cfg.progress_bar)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*exists and is not empty.*")
+        warnings.filterwarnings("ignore", message=".*smaller than the logging interval.*")
+        trainer.fit(model, datamodule=datamodule, ckpt_path=str(ckpt_path) if ckpt_path else None)
+    scalar = lambda d: {k: float(v) for k, v in d.items() if torch.is_tensor(v) and v.numel() == 1}  # noqa: E731
+    metrics = scalar(trainer.callback_metrics)
+    if not checkpoint.best_model_path and not trainer.interrupted:
+        # Training stopped before any validation (max_steps inside the first epoch): validate once so the
+        # run still has a best.ckpt with a val/loss.
+        trainer.validate(model, datamodule=datamodule, verbose=False)
+        trainer.save_checkpoint(out_dir / "best.ckpt")
+        metrics.update(scalar(trainer.callback_metrics))
+        if "val/loss" in trainer.callback_metrics:
+            checkpoint.best_model_score = trainer.callback_metrics["val/loss"]
+    if checkpoint.best_model_score is not None:
+        metrics["best_val_loss"] = float(checkpoint.best_model_score)
+    best = out_dir / "best.ckpt"
+    last = out_dir / "last.ckpt"
+    if trainer.is_global_zero:
+        (out_dir / FINISHED).write_text(json.dumps({"metrics": metrics, "global_step": trainer.global_step}, indent=2))
+    return FitResult(best if best.is_file() else None, last if last.is_file() else None, out_dir, metrics)

@@ -1,0 +1,214 @@
+"""Training end to end from the REAL presets, shrunk for the CPU (lightning-hydra-template style)."""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import json
+import math
+from pathlib import Path
+
+import lightning
+import numpy as np
+import pytest
+import torch
+
+from physdyn.config import ExperimentConfig, PretrainConfig, load_config
+from physdyn.data.datamodule import DynamicsDataModule
+from physdyn.data.normalization import Normalization
+from physdyn.data.store import load_store
+from physdyn.data.windows import world_oriented_points
+from physdyn.errors import ConfigError, PhysdynError
+from physdyn.models.dynamics_module import DynamicsModel
+from physdyn.models.training import fit, load_experiment_config
+from physdyn.registry import ENCODERS, HEADS, PREDICTORS
+from tests.conftest import run_cli
+from tests.models.conftest import QUICKSTART, REPO, shrunk_overrides
+
+COMBINATIONS = list(itertools.product(ENCODERS.names(), PREDICTORS.names(), HEADS.names()))
+
+
+def _csv_rows(out_dir: Path) -> list[dict]:
+    with open(out_dir / "csv" / "metrics.csv") as fh:
+        return list(csv.DictReader(fh))
+
+
+@pytest.mark.parametrize("encoder,predictor,head", COMBINATIONS)
+def test_every_registered_component_combination_trains(quickstart_config, encoder, predictor, head):
+    cfg = quickstart_config(f"model.predictor.name={predictor}", f"model.head.name={head}")
+    if encoder != cfg.model.encoder.name:  # a plugin encoder: its own defaults (the shrink is PointNet's)
+        cfg.model.encoder.name, cfg.model.encoder.params = encoder, {}
+    result = fit(cfg)
+    assert result.last_checkpoint is not None and result.last_checkpoint.is_file()
+    assert result.best_checkpoint is not None and result.best_checkpoint.is_file()
+    assert math.isfinite(result.metrics["train/loss"]) and math.isfinite(result.metrics["best_val_loss"])
+    assert ("train/topple" in result.metrics) == (head == "topple")
+    assert (result.out_dir / "config.yaml").is_file() and (result.out_dir / "finished.json").is_file()
+    assert any(r.get("train/loss_step") for r in _csv_rows(result.out_dir))
+    assert any((result.out_dir / "tensorboard").iterdir())
+    saved = load_config(ExperimentConfig, result.out_dir / "config.yaml")
+    assert saved.model.predictor.name == predictor and saved.data.store == cfg.data.store
+
+
+def test_model_overfits_a_tiny_store(tiny_store, tmp_path):
+    # A fixed set of real windows from the store, the module's own loss: the loss must fall >= 10x.
+    lightning.seed_everything(0)
+    cfg = load_experiment_config(QUICKSTART, shrunk_overrides(
+        tiny_store, tmp_path, "data.batch_size=8", "model.predictor.params.hidden=64",
+        "model.encoder.params.batch_norm=false", "optim.lr=1e-2",
+    ))
+    dm = DynamicsDataModule(cfg.data)
+    dm.setup("fit")
+    batch = next(iter(dm.val_dataloader()))
+    model = DynamicsModel(cfg, dm.normalization)
+    optimizer = torch.optim.Adam(model.parameters(), lr=cfg.optim.lr)
+    losses = []
+    for _ in range(1500):
+        loss = model.compute_loss(batch).total
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        losses.append(loss.item())
+    assert losses[0] / min(losses[-20:]) >= 10.0, (losses[0], losses[-20:])
+    # the resting/padded steps were learned too: predicted changes there are small
+    pred = model.predict_window(batch["points"], batch["linear_velocity"], batch["angular_velocity"])
+    resting = ~batch["valid"]
+    assert resting.any()
+    assert pred.delta_position[resting].norm(dim=-1).mean() < 0.1 * dm.normalization.position
+
+
+def test_checkpoint_reloads_with_config_and_normalisation(quickstart_config, tiny_store, tmp_path):
+    cfg = quickstart_config("trainer.max_steps=4")
+    lightning.seed_everything(1)
+    dm = DynamicsDataModule(cfg.data)
+    dm.setup("fit")
+    model = DynamicsModel(cfg, dm.normalization, {"rate_hz": dm.rate_hz})
+    trainer = lightning.Trainer(max_steps=4, accelerator="cpu", logger=False, enable_checkpointing=False,
+                                enable_progress_bar=False, enable_model_summary=False)
+    trainer.fit(model, datamodule=dm)
+    path = tmp_path / "model.ckpt"
+    trainer.save_checkpoint(path)
+
+    loaded = DynamicsModel.load_from_checkpoint(path)
+    assert loaded.normalization == dm.normalization
+    assert loaded.config == cfg
+    assert loaded.data_info["rate_hz"] == dm.rate_hz
+    batch = next(iter(dm.val_dataloader()))
+    a = model.predict_window(batch["points"], batch["linear_velocity"], batch["angular_velocity"])
+    b = loaded.predict_window(batch["points"], batch["linear_velocity"], batch["angular_velocity"])
+    for key in ("delta_linear_velocity", "delta_angular_velocity", "delta_position", "delta_rotation", "topple_probability"):
+        assert torch.equal(getattr(a, key), getattr(b, key)), key
+    loaded.train()
+    loaded.predict_window(batch["points"], batch["linear_velocity"], batch["angular_velocity"])
+    assert loaded.training  # predict_window runs in eval mode and restores the caller's mode
+    # de-normalised outputs are in SI units: the same as normalised output x the saved scales
+    feature = loaded.encode_points(batch["points"])
+    with torch.no_grad():
+        loaded.eval()
+        changes, _, _ = loaded(feature, batch["linear_velocity"], batch["angular_velocity"])
+    scale = torch.tensor(Normalization.from_dict(loaded.hparams["normalization"]).change_scales(), dtype=torch.float32)
+    assert torch.allclose(changes[..., 6:9] * scale[6:9], b.delta_position, atol=1e-6)
+
+
+def test_step_by_step_rollout_api_matches_the_window(quickstart_config, tiny_store):
+    cfg = quickstart_config()
+    store = load_store(tiny_store)
+    dm = DynamicsDataModule(cfg.data, store=store)
+    dm.setup("fit")
+    model = DynamicsModel(cfg, dm.normalization)
+    sim = int(dm.sims.test[0])
+    f = store.frames(sim)
+    points = world_oriented_points(store.points[store.shape_id[sim]], store.orientation_xyzw[f.start])[None]
+    v, w = store.linear_velocity[f][None, :10], store.angular_velocity[f][None, :10]
+    window = model.predict_window(points, v, w)
+    feature = model.encode_points(points)
+    state, steps = None, []
+    for t in range(10):
+        out = model.step(feature, v[:, t], w[:, t], state)
+        state = out.state
+        steps.append(out.delta_rotation)
+    assert torch.allclose(torch.stack(steps, dim=1), window.delta_rotation, atol=1e-5)
+    assert window.to_numpy()["topple_probability"].shape == (1, 10)
+
+
+def test_resume_continues_and_finished_runs_are_protected(quickstart_config):
+    first = fit(quickstart_config("trainer.max_steps=2"))
+    with pytest.raises(PhysdynError, match="finished run.*--overwrite"):
+        fit(quickstart_config("trainer.max_steps=2"))
+    resumed = fit(quickstart_config("trainer.max_steps=5"), resume=True)
+    assert resumed.out_dir == first.out_dir
+    assert json.loads((first.out_dir / "finished.json").read_text())["global_step"] == 5
+    ckpt = torch.load(resumed.last_checkpoint, map_location="cpu", weights_only=False)
+    assert ckpt["global_step"] == 5
+    again = fit(quickstart_config("trainer.max_steps=1"), overwrite=True)
+    assert json.loads((again.out_dir / "finished.json").read_text())["global_step"] == 1
+
+
+def test_bad_config_is_a_one_line_error_naming_the_key(tiny_store, tmp_path):
+    base = ["fit", "--config", str(QUICKSTART), f"data.store={tiny_store}", f"out_dir={tmp_path / 'r'}"]
+    cases = [
+        ("data.windw=3", "data.windw"),
+        ("data.window=abc", "data.window"),
+        ("model.encoder.params.widths=[3]", "model.encoder.params.widths"),
+        ("model.predictor.name=gru", "model.predictor.name"),
+        ("trainer.max_epoch=3", "trainer.max_epoch"),
+        ("loss.kind=squared", "loss.kind"),
+    ]
+    for override, key in cases:  # in-process: the library raises a one-line ConfigError naming the key
+        with pytest.raises(ConfigError) as info:
+            load_experiment_config(QUICKSTART, [f"data.store={tiny_store}", override])
+        assert key in str(info.value) and "\n" not in str(info.value), override
+    with pytest.raises(ConfigError, match="data.exclude_categories.*chairs"):
+        fit(load_experiment_config(QUICKSTART, shrunk_overrides(tiny_store, tmp_path / "r", "data.exclude_categories=[chairs]")))
+    for override, key in cases[:2] + cases[3:4]:  # as a user sees it: one line on stderr, exit status 2
+        proc = run_cli(*base, override)
+        assert proc.returncode == 2, (override, proc.stderr)
+        lines = proc.stderr.strip().splitlines()
+        assert len(lines) == 1 and key in lines[0], (override, proc.stderr)
+    assert not (tmp_path / "r" / "last.ckpt").exists()
+
+
+def test_every_preset_loads_and_builds():
+    presets = sorted((REPO / "configs" / "experiment").glob("*.yaml"))
+    names = {p.stem for p in presets}
+    assert {"quickstart", "paper", "mlp_baseline", "realworld", "pretrain"} <= names
+    norm = Normalization()
+    for path in presets:
+        if path.stem == "pretrain":
+            assert load_config(PretrainConfig, path).encoder.name == "pointnet"
+            continue
+        cfg = load_experiment_config(path)
+        model = DynamicsModel(cfg, norm)
+        assert model.predicts_topple == (path.stem != "realworld"), path.stem
+    paper = DynamicsModel(load_experiment_config(REPO / "configs/experiment/paper.yaml"), norm)
+    assert 22.5e6 < sum(p.numel() for p in paper.parameters()) < 23.3e6
+    quick = load_experiment_config(QUICKSTART)
+    assert quick.data.num_points == 256 and quick.model.predictor.params == {"num_layers": 3, "hidden": 128}
+    assert max(quick.model.encoder.params["point_widths"]) <= 256
+    real = load_experiment_config(REPO / "configs/experiment/realworld.yaml")
+    assert real.loss.kind == "absolute" and real.model.encoder.params["batch_norm"] is False
+
+
+def test_leave_one_category_out(quickstart_config, tiny_store):
+    store = load_store(tiny_store)
+    left_out = store.category_names[2]
+    result = fit(quickstart_config(f"data.exclude_categories=[{left_out}]"))
+    model = DynamicsModel.load_from_checkpoint(result.last_checkpoint)
+    cats = store.sim_category()
+    assert model.data_info["train_sims"] == int(np.sum((store.split == 0) & (cats != 2)))
+
+
+def test_ddp_two_cpu_processes_via_the_cli(tiny_store, tmp_path):
+    out = tmp_path / "ddp"
+    proc = run_cli(
+        "fit", "--config", str(QUICKSTART),
+        *shrunk_overrides(tiny_store, out, "trainer.strategy=ddp", "trainer.accelerator=cpu", "trainer.devices=2",
+                          "trainer.max_steps=2"),
+        timeout=240,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "results in" in proc.stdout and str(out) in proc.stdout
+    assert (out / "last.ckpt").is_file() and (out / "best.ckpt").is_file()
+    ckpt = torch.load(out / "last.ckpt", map_location="cpu", weights_only=False)
+    assert ckpt["global_step"] == 2
+    assert "world_size=2" in proc.stderr or "distributed_backend=gloo" in proc.stderr or "GLOBAL_RANK: 1" in proc.stderr
