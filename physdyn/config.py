@@ -145,14 +145,31 @@ def load_config(schema: Type[S], path: str | Path | None = None, overrides: List
         layers = [base]
         if path is not None:
             layers.append(_read_yaml(Path(path)))
-        for item in overrides or []:
+        merged = OmegaConf.merge(*layers)
+        overrides = list(overrides or [])
+        for item in overrides:
             if "=" not in item:
                 raise ConfigError(f"override '{item}' is not key=value (e.g. seed=3)")
-            layers.append(OmegaConf.from_dotlist([item]))
-        merged = OmegaConf.merge(*layers)
+        _drop_params_of_switched_components(merged, overrides)
+        if overrides:
+            merged = OmegaConf.merge(merged, *[OmegaConf.from_dotlist([item]) for item in overrides])
         return OmegaConf.to_object(merged)  # type: ignore[return-value]
     except OmegaConfBaseException as exc:
         raise ConfigError(_omegaconf_message(exc)) from None
+
+
+def _drop_params_of_switched_components(merged: DictConfig, overrides: List[str]) -> None:
+    """``model.encoder.name=dgcnn`` switches a component: the preset's ``params`` belong to the old one
+    (PointNet widths mean nothing to DGCNN), so they are dropped; params given in the overrides still apply."""
+    for item in overrides:
+        key, value = item.split("=", 1)
+        if not key.endswith(".name"):
+            continue
+        parent = key[: -len(".name")]
+        node = OmegaConf.select(merged, parent, default=None)
+        if not isinstance(node, DictConfig) or "params" not in node or node.get("name") == value:
+            continue
+        node.params = {}
 
 
 def to_dict(config: Any) -> dict:

@@ -1,0 +1,53 @@
+"""`physdyn test`: roll a trained model out on a store's split, beside the baselines, and write a report."""
+
+from __future__ import annotations
+
+import argparse
+
+ORDER = 40
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "test",
+        help="evaluate a checkpoint against the baselines and write metrics and plots",
+        description=(
+            "Roll a trained model out on every simulation of a split, beside the stay-put and Coulomb-sliding "
+            "baselines (and optionally another checkpoint such as the MLP baseline), and write metrics.json, "
+            "report.md and PNG plots to --out. Definitions: docs/evaluation.md."
+        ),
+        epilog="example: physdyn test --checkpoint runs/quickstart/best.ckpt --data data/quickstart.zarr --out runs/quickstart/test",
+    )
+    p.add_argument("--checkpoint", required=True, help="a .ckpt written by `physdyn fit`")
+    p.add_argument("--data", help="store to evaluate on (default: the store the model was trained on)")
+    p.add_argument("--out", required=True, help="folder for metrics.json, report.md and the plots")
+    p.add_argument("--split", choices=["train", "val", "test"], default="test", help="default: %(default)s")
+    p.add_argument("--warm-start", type=int, default=0, metavar="K",
+                   help="feed the true velocities of steps 1..K before rolling out (default: %(default)s)")
+    p.add_argument("--categories", nargs="+", metavar="NAME", help="evaluate only these categories")
+    p.add_argument("--baseline-checkpoint", action="append", default=[], metavar="CKPT",
+                   help="another model checkpoint to compare with, e.g. the MLP baseline (repeatable)")
+    p.set_defaults(func=run, parser=p)
+
+
+def run(args: argparse.Namespace) -> int:
+    from physdyn.errors import PhysdynError
+    from physdyn.eval.baselines import load_checkpoint
+    from physdyn.eval.evaluate import compare
+    from physdyn.eval.report import write_report
+
+    if args.warm_start < 0:
+        raise PhysdynError(f"--warm-start must be >= 0, got {args.warm_start}")
+    model = load_checkpoint(args.checkpoint)
+    data = args.data or model.data_info.get("store")
+    if not data:
+        raise PhysdynError(f"{args.checkpoint} does not record its store; pass --data STORE")
+    baselines = ["stay_put", "coulomb_slide", *(load_checkpoint(c) for c in args.baseline_checkpoint)]
+    result = compare(model, data, baselines, split=args.split, warm_start=args.warm_start, categories=args.categories)
+    paths = write_report(result, args.out)
+    head = result["results"][result["model"]]["headline"]
+    print(f"{result['model']} on {head['count']} non-toppling {args.split} sequences: "
+          f"position {head['position']:.4g} m/step, final position (median) {head['final_position_m_median']:.4g} m")
+    print(result["verdict"])
+    print(f"wrote {', '.join(str(p) for p in paths.values())}")
+    return 0

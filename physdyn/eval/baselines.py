@@ -1,0 +1,167 @@
+"""Predictors that need no learning, with the output of ``rollout``, and loading any predictor by name.
+
+- ``stay_put``: the object never moves (its velocities drop to zero after step 0).
+- ``coulomb_slide``: the centre of mass slides along the horizontal part of v0, decelerating at mu g
+  (mu: the store's effective Coulomb coefficient, ``sims/friction``) until it stops; no rotation. This is
+  exact for a box pushed through its centre of mass, and the bar a learned model must clear.
+Both predict that nothing topples (probability 0 at every step). Neither uses a warm start.
+
+``resolve_predictor`` accepts a baseline's name, a ``Baseline``, a ``DynamicsModel`` or the path of any
+``DynamicsModel`` checkpoint (e.g. the MLP baseline of ``configs/experiment/mlp_baseline.yaml``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from physdyn.errors import PhysdynError
+from physdyn.eval.rollout import RolloutResult
+
+GRAVITY = 9.81
+
+
+class CheckpointError(PhysdynError):
+    """A checkpoint path that is missing or does not hold a physdyn DynamicsModel."""
+
+
+def _result(p: np.ndarray, q: np.ndarray, v: np.ndarray, w: np.ndarray) -> RolloutResult:
+    """States (B, T, ...) -> a RolloutResult whose deltas are the state differences."""
+    B, T = p.shape[:2]
+    zeros = np.zeros((B, T - 1, 3))
+    return RolloutResult(
+        com_position=p, orientation_xyzw=q, linear_velocity=v, angular_velocity=w,
+        topple_probability=np.zeros((B, T)),
+        delta_linear_velocity=np.diff(v, axis=1), delta_angular_velocity=np.diff(w, axis=1),
+        delta_position=np.diff(p, axis=1), delta_rotation=zeros,
+        fed_linear_velocity=v[:, :-1].copy(), fed_angular_velocity=w[:, :-1].copy(),
+    )
+
+
+def _initial(com_position0, orientation0_xyzw, lin_vel0, ang_vel0):
+    p0 = np.asarray(com_position0, np.float64).reshape(-1, 3)
+    q0 = np.asarray(orientation0_xyzw, np.float64).reshape(-1, 4)
+    return p0, q0 / np.linalg.norm(q0, axis=-1, keepdims=True), np.asarray(lin_vel0, np.float64).reshape(-1, 3), \
+        np.asarray(ang_vel0, np.float64).reshape(-1, 3)
+
+
+def stay_put(com_position0: np.ndarray, orientation0_xyzw: np.ndarray, lin_vel0: np.ndarray, ang_vel0: np.ndarray,
+             steps: int) -> RolloutResult:
+    """The object stays where it is: (B, 3), (B, 4), (B, 3), (B, 3) at step 0 -> T = steps + 1 steps."""
+    p0, q0, v0, w0 = _initial(com_position0, orientation0_xyzw, lin_vel0, ang_vel0)
+    T = steps + 1
+    v = np.zeros((len(p0), T, 3))
+    w = np.zeros((len(p0), T, 3))
+    v[:, 0], w[:, 0] = v0, w0
+    return _result(np.repeat(p0[:, None], T, axis=1), np.repeat(q0[:, None], T, axis=1), v, w)
+
+
+def coulomb_slide(com_position0: np.ndarray, orientation0_xyzw: np.ndarray, lin_vel0: np.ndarray, ang_vel0: np.ndarray,
+                  steps: int, friction: np.ndarray | float, rate_hz: float, gravity: float = GRAVITY) -> RolloutResult:
+    """Sliding with Coulomb friction, in closed form at the recording times t_k = k / rate_hz.
+
+    friction: (B,) or a scalar effective Coulomb coefficient mu. With u the horizontal part of v0,
+    s0 = |u| and a = mu g: speed s(t) = max(s0 - a t, 0); distance d(t) = s0 t - a t^2 / 2 until the stop
+    at t = s0 / a, then s0^2 / (2 a). Height and orientation stay; angular velocity is 0 after step 0.
+    """
+    p0, q0, v0, w0 = _initial(com_position0, orientation0_xyzw, lin_vel0, ang_vel0)
+    B, T = len(p0), steps + 1
+    mu = np.broadcast_to(np.asarray(friction, np.float64), (B,))
+    if np.any(mu <= 0):
+        raise ValueError(f"friction must be positive, got {mu[mu <= 0][:3]}")
+    u = v0.copy()
+    u[:, 2] = 0.0
+    s0 = np.linalg.norm(u, axis=-1)
+    direction = np.divide(u, s0[:, None], out=np.zeros_like(u), where=s0[:, None] > 0)
+    a = mu * gravity
+    t = np.arange(T)[None, :] / float(rate_hz)
+    t_stop = s0 / a
+    tc = np.minimum(t, t_stop[:, None])
+    speed = s0[:, None] - a[:, None] * tc
+    dist = s0[:, None] * tc - 0.5 * a[:, None] * tc**2
+    p = p0[:, None] + dist[..., None] * direction[:, None]
+    v = speed[..., None] * direction[:, None]
+    v[:, 0] = v0
+    w = np.zeros((B, T, 3))
+    w[:, 0] = w0
+    return _result(p, np.repeat(q0[:, None], T, axis=1), v, w)
+
+
+class Baseline:
+    """A named baseline for ``evaluate``: ``rollout(p0, q0, v0, w0, steps, friction, rate_hz)``."""
+
+    name = "baseline"
+    predicts_topple = True  # its zero probabilities are a prediction: "never topples"
+
+    def rollout(self, com_position0, orientation0_xyzw, lin_vel0, ang_vel0, steps: int, friction, rate_hz: float) -> RolloutResult:
+        raise NotImplementedError
+
+
+class StayPut(Baseline):
+    name = "stay_put"
+
+    def rollout(self, com_position0, orientation0_xyzw, lin_vel0, ang_vel0, steps, friction, rate_hz):
+        return stay_put(com_position0, orientation0_xyzw, lin_vel0, ang_vel0, steps)
+
+
+class CoulombSlide(Baseline):
+    name = "coulomb_slide"
+
+    def __init__(self, gravity: float = GRAVITY):
+        self.gravity = gravity
+
+    def rollout(self, com_position0, orientation0_xyzw, lin_vel0, ang_vel0, steps, friction, rate_hz):
+        return coulomb_slide(com_position0, orientation0_xyzw, lin_vel0, ang_vel0, steps, friction, rate_hz, self.gravity)
+
+
+BASELINES: dict[str, type[Baseline]] = {"stay_put": StayPut, "coulomb_slide": CoulombSlide}
+
+
+def load_checkpoint(path: str | Path):
+    """A ``DynamicsModel`` from a checkpoint of `physdyn fit`; a one-line ``CheckpointError`` otherwise."""
+    import torch
+
+    from physdyn.models.dynamics_module import DynamicsModel
+
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"no checkpoint file {path}; train one with `physdyn fit` (it writes best.ckpt and last.ckpt)")
+    try:
+        raw = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:
+        raise CheckpointError(f"{path} is not a PyTorch checkpoint ({type(exc).__name__}); pass a .ckpt written by `physdyn fit`") from None
+    hparams = raw.get("hyper_parameters") if isinstance(raw, dict) else None
+    if not isinstance(hparams, dict) or not {"config", "normalization"} <= set(hparams) or "state_dict" not in raw:
+        raise CheckpointError(f"{path} is not a physdyn DynamicsModel checkpoint (no physdyn config, normalisation and "
+                              f"weights); pass best.ckpt or last.ckpt from a `physdyn fit` run")
+    try:
+        model = DynamicsModel.load_from_checkpoint(path, map_location="cpu")
+    except PhysdynError:
+        raise
+    except Exception as exc:
+        raise CheckpointError(f"cannot load {path} as a physdyn DynamicsModel: {type(exc).__name__}: "
+                              f"{str(exc).splitlines()[0] if str(exc) else ''}") from None
+    model.eval()
+    return model
+
+
+def resolve_predictor(spec: Any):
+    """A baseline name, a ``Baseline``, a ``DynamicsModel`` or a checkpoint path -> the predictor."""
+    if isinstance(spec, Baseline) or hasattr(spec, "encode_points"):
+        return spec
+    if isinstance(spec, str) and spec in BASELINES:
+        return BASELINES[spec]()
+    if isinstance(spec, (str, Path)):
+        return load_checkpoint(spec)
+    raise TypeError(f"cannot evaluate a {type(spec).__name__}; pass a DynamicsModel, a checkpoint path or one of {sorted(BASELINES)}")
+
+
+def predictor_name(predictor: Any, fallback: str = "model") -> str:
+    if isinstance(predictor, Baseline):
+        return predictor.name
+    try:
+        return str(predictor.config.name) or fallback
+    except AttributeError:
+        return fallback

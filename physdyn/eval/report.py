@@ -1,0 +1,113 @@
+"""Write a comparison (``physdyn.eval.evaluate.compare``) to a folder: metrics.json, report.md, plots.
+
+- ``metrics.json``: the whole comparison (NaN written as null)
+- ``report.md``: the headline table (non-toppling roll-outs, as in the paper) and the verdict
+- ``rollout_error_vs_time.png``: mean accumulated position and rotation error per step (supplement Fig. 1)
+- ``errors_per_category.png``: mean roll-out errors per category (supplement Fig. 6)
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from physdyn.eval.metrics import ERROR_KEYS
+
+UNITS = {"linear_velocity": "m/s", "angular_velocity": "rad/s", "position": "m", "angle_deg": "deg", "axis": "1 - cos"}
+
+
+def _clean(obj: Any) -> Any:
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, dict):
+        return {k: _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, np.generic):
+        return _clean(obj.item())
+    return obj
+
+
+def _fmt(x: Any, digits: int = 4) -> str:
+    return "n/a" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{x:.{digits}g}"
+
+
+def markdown(comparison: dict) -> str:
+    first = next(iter(comparison["results"].values()))
+    lines = [
+        f"# Evaluation on {first['store']} ({first['split']} split, warm start {first['warm_start']})", "",
+        "Roll-out errors per step on non-toppling sequences (mean over steps, then sequences); relative errors "
+        "are sum |error| / sum |true change| per sequence; final errors are medians at the last step.", "",
+    ]
+    head = ["predictor", "n"] + [f"{k} ({UNITS[k]})" for k in ERROR_KEYS] + ["rel. v", "rel. w", "rel. p", "rel. angle",
+                                                                             "final p (m)", "final rot (deg)", "topple acc."]
+    lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for row in comparison["table"]:
+        cells = [row["predictor"], str(row["count"])] + [_fmt(row[k]) for k in ERROR_KEYS]
+        cells += [_fmt(100 * row[f"relative_{k}"], 3) + " %" for k in ("linear_velocity", "angular_velocity", "position", "angle")]
+        cells += [_fmt(row["final_position_m_median"]), _fmt(row["final_rotation_deg_median"]), _fmt(row["topple_accuracy"], 3)]
+        lines.append("| " + " | ".join(cells) + " |")
+    lines += ["", comparison["verdict"], ""]
+    return "\n".join(lines)
+
+
+def plot_error_vs_time(comparison: dict, path: Path, group: str = "non_toppling") -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    for name, result in comparison["results"].items():
+        curves = result["curves"].get(group) or result["curves"]["all"]
+        t = np.arange(len(curves["position_m"])) / result["rate_hz"]
+        axes[0].plot(t, np.array(curves["position_m"], dtype=float), label=name)
+        axes[1].plot(t, np.array(curves["rotation_deg"], dtype=float), label=name)
+    axes[0].set(xlabel="time (s)", ylabel="position error (m)", title=f"Roll-out position error ({group})")
+    axes[1].set(xlabel="time (s)", ylabel="rotation error (deg)", title=f"Roll-out rotation error ({group})")
+    axes[0].legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def plot_errors_per_category(comparison: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    keys = ("linear_velocity", "angular_velocity", "position", "angle_deg")
+    names = list(comparison["results"])
+    cats = list(next(iter(comparison["results"].values()))["per_category"])
+    fig, axes = plt.subplots(1, len(keys), figsize=(4 * len(keys), 3.5))
+    width = 0.8 / max(len(names), 1)
+    for i, name in enumerate(names):
+        per_cat = comparison["results"][name]["per_category"]
+        for ax, key in zip(axes, keys):
+            values = [per_cat[c]["non_toppling"]["rollout"][key] for c in cats]
+            ax.bar(np.arange(len(cats)) + i * width, values, width, label=name)
+    for ax, key in zip(axes, keys):
+        ax.set_xticks(np.arange(len(cats)) + 0.4 - width / 2, cats, rotation=30)
+        ax.set_title(f"{key} ({UNITS[key]})")
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def write_report(comparison: dict, out_dir: str | Path) -> dict[str, Path]:
+    """Write the files listed in the module docstring into ``out_dir``; returns name -> path."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {"metrics": out / "metrics.json", "report": out / "report.md",
+             "error_vs_time": out / "rollout_error_vs_time.png", "per_category": out / "errors_per_category.png"}
+    paths["metrics"].write_text(json.dumps(_clean(comparison), indent=1))
+    paths["report"].write_text(markdown(comparison))
+    plot_error_vs_time(comparison, paths["error_vs_time"])
+    plot_errors_per_category(comparison, paths["per_category"])
+    return paths

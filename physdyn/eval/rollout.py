@@ -1,0 +1,183 @@
+"""Roll-outs: the model predicts a whole trajectory from the state right after the push.
+
+As in the reference test code (method-notes section 5): the shape feature is computed once, from the
+body-frame point cloud rotated into the world orientation of step 0; at each step the current velocities
+are fed with the recurrent state carried over; the predicted changes are added to v, w and p and the
+world-frame rotation is composed on the left, R_{t+1} = Exp(dtheta_t) R_t (physdyn's targets are
+world-frame: ``physdyn.data.windows``). Quaternions are re-normalised every step.
+
+Shapes: B sequences, S = ``steps`` predicted transitions, T = S + 1 recorded steps (step 0 included).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+
+from physdyn.data.windows import world_oriented_points
+from physdyn.geometry.rotations import quat_multiply, rotvec_to_quat
+
+DELTA_KEYS = ("delta_linear_velocity", "delta_angular_velocity", "delta_position", "delta_rotation")
+STATE_KEYS = ("com_position", "orientation_xyzw", "linear_velocity", "angular_velocity")
+
+
+@dataclass
+class RolloutResult:
+    """A predicted trajectory per sequence, SI units, world frame (docs/conventions.md).
+
+    com_position (B, T, 3), orientation_xyzw (B, T, 4) unit quaternions, linear_velocity (B, T, 3),
+    angular_velocity (B, T, 3): the state at steps 0..S.
+    topple_probability (B, T) or None: the probability that the object has toppled by step t (the model's
+    output at step t-1, which predicts the label of step t; 0 at step 0, where nothing has toppled yet).
+    delta_* (B, S, 3): the predicted change from step t to t+1 (``delta_rotation`` world axis-angle).
+    fed_linear_velocity, fed_angular_velocity (B, S, 3): the velocities the predictor received at step t
+    (its own roll-out, or the truth during a warm start).
+    """
+
+    com_position: np.ndarray
+    orientation_xyzw: np.ndarray
+    linear_velocity: np.ndarray
+    angular_velocity: np.ndarray
+    topple_probability: np.ndarray | None
+    delta_linear_velocity: np.ndarray
+    delta_angular_velocity: np.ndarray
+    delta_position: np.ndarray
+    delta_rotation: np.ndarray
+    fed_linear_velocity: np.ndarray
+    fed_angular_velocity: np.ndarray
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def num_steps(self) -> int:
+        """S, the number of predicted transitions."""
+        return self.delta_position.shape[1]
+
+    def deltas(self) -> dict[str, np.ndarray]:
+        return {k: getattr(self, k) for k in DELTA_KEYS}
+
+    def sequence(self, b: int) -> dict[str, np.ndarray | None]:
+        """One sequence's arrays with the names of a prediction file (conventions: `physdyn predict`)."""
+        out: dict[str, np.ndarray | None] = {k: getattr(self, k)[b] for k in STATE_KEYS}
+        out["topple_probability"] = None if self.topple_probability is None else self.topple_probability[b]
+        return out
+
+
+def _numpy(x: Any) -> np.ndarray:
+    if hasattr(x, "detach"):
+        x = x.detach().cpu().numpy()
+    return np.asarray(x, dtype=np.float64)
+
+
+def integrate(p0: np.ndarray, q0: np.ndarray, v0: np.ndarray, w0: np.ndarray, deltas: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Accumulate per-step changes into states (a pure function; ``rollout`` uses it for the pose).
+
+    p0 (B, 3), q0 (B, 4) xyzw, v0 (B, 3), w0 (B, 3): the state at step 0; deltas: ``delta_*`` (B, S, 3)
+    as in ``DELTA_KEYS``. Returns ``com_position`` (B, S+1, 3), ``orientation_xyzw`` (B, S+1, 4),
+    ``linear_velocity`` and ``angular_velocity`` (B, S+1, 3), float64:
+    p_{t+1} = p_t + dp_t, v_{t+1} = v_t + dv_t, w_{t+1} = w_t + dw_t, R_{t+1} = Exp(dtheta_t) R_t.
+    """
+    d = {k: _numpy(deltas[k]) for k in DELTA_KEYS}
+    B, S = d["delta_position"].shape[:2]
+    out = {
+        "com_position": np.empty((B, S + 1, 3)),
+        "orientation_xyzw": np.empty((B, S + 1, 4)),
+        "linear_velocity": np.empty((B, S + 1, 3)),
+        "angular_velocity": np.empty((B, S + 1, 3)),
+    }
+    q = _numpy(q0).reshape(B, 4)
+    out["orientation_xyzw"][:, 0] = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    for key, start, delta in (("com_position", p0, "delta_position"), ("linear_velocity", v0, "delta_linear_velocity"),
+                              ("angular_velocity", w0, "delta_angular_velocity")):
+        arr = out[key]
+        arr[:, 0] = _numpy(start).reshape(B, 3)
+        for t in range(S):  # sequential sums, so a step-by-step roll-out gives bitwise the same numbers
+            arr[:, t + 1] = arr[:, t] + d[delta][:, t]
+    for t in range(S):
+        q = quat_multiply(rotvec_to_quat(d["delta_rotation"][:, t]), out["orientation_xyzw"][:, t])
+        out["orientation_xyzw"][:, t + 1] = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return out
+
+
+def _warm_start(warm_start_velocities: Any, B: int) -> tuple[np.ndarray, np.ndarray]:
+    if warm_start_velocities is None:
+        return np.zeros((B, 0, 3)), np.zeros((B, 0, 3))
+    lin, ang = (_numpy(x) for x in warm_start_velocities)
+    if lin.shape != ang.shape or lin.ndim != 3 or lin.shape[0] != B or lin.shape[2] != 3:
+        raise ValueError(
+            f"warm_start_velocities must be (linear, angular), each (B={B}, K, 3); got {lin.shape} and {ang.shape}"
+        )
+    return lin, ang
+
+
+def rollout(
+    model: Any,
+    points_body: np.ndarray,
+    orientation0_xyzw: np.ndarray,
+    com_position0: np.ndarray,
+    lin_vel0: np.ndarray,
+    ang_vel0: np.ndarray,
+    steps: int,
+    warm_start_velocities: tuple[np.ndarray, np.ndarray] | None = None,
+) -> RolloutResult:
+    """Roll a predictor out for ``steps`` transitions from the state at step 0, B sequences at once.
+
+    model: a ``DynamicsModel`` (or anything with its ``encode_points`` and ``step``).
+    points_body: (B, N, 3) body-frame cloud (pass the number of points the model was trained on);
+    orientation0_xyzw (B, 4), com_position0 (B, 3), lin_vel0 (B, 3), ang_vel0 (B, 3): step 0, world frame.
+    warm_start_velocities: optional (linear, angular), each (B, K, 3): the TRUE velocities at steps 1..K,
+    fed instead of the model's own (the paper's "additional velocity steps"; K = 1 for the real-world
+    model). Step 0 always receives the given true velocities. During the warm start the reported
+    velocities are these observations; position and orientation are always the model's integrated ones.
+    """
+    if steps < 0:
+        raise ValueError(f"steps must be >= 0, got {steps}")
+    q0 = _numpy(orientation0_xyzw)
+    B = q0.shape[0]
+    warm_v, warm_w = _warm_start(warm_start_velocities, B)
+    K = warm_v.shape[1]
+    feature = model.encode_points(world_oriented_points(_numpy(points_body), q0).astype(np.float32))
+    v, w = _numpy(lin_vel0).reshape(B, 3).copy(), _numpy(ang_vel0).reshape(B, 3).copy()
+    fed_v, fed_w = np.empty((B, steps, 3)), np.empty((B, steps, 3))
+    deltas = {k: np.empty((B, steps, 3)) for k in DELTA_KEYS}
+    topple = []
+    state = None
+    for t in range(steps):
+        if 1 <= t <= K:
+            v, w = warm_v[:, t - 1].copy(), warm_w[:, t - 1].copy()
+        fed_v[:, t], fed_w[:, t] = v, w
+        pred = model.step(feature, v, w, state)
+        state = pred.state
+        for k in DELTA_KEYS:
+            deltas[k][:, t] = _numpy(getattr(pred, k))
+        if pred.topple_probability is not None:
+            topple.append(_numpy(pred.topple_probability))
+        v = v + deltas["delta_linear_velocity"][:, t]
+        w = w + deltas["delta_angular_velocity"][:, t]
+    states = integrate(com_position0, q0, lin_vel0, ang_vel0, deltas)
+    if K and steps:
+        # the velocity track restarts from each observation: report what was fed, then the last update
+        states["linear_velocity"] = np.concatenate([fed_v, v[:, None]], axis=1)
+        states["angular_velocity"] = np.concatenate([fed_w, w[:, None]], axis=1)
+    probability = None
+    if topple or (steps == 0 and getattr(model, "predicts_topple", False)):
+        probability = np.concatenate([np.zeros((B, 1)), np.stack(topple, axis=1) if topple else np.zeros((B, 0))], axis=1)
+    return RolloutResult(**states, topple_probability=probability, **deltas, fed_linear_velocity=fed_v,
+                         fed_angular_velocity=fed_w)
+
+
+def teacher_forced(
+    model: Any, points_body: np.ndarray, orientation0_xyzw: np.ndarray, linear_velocity: np.ndarray, angular_velocity: np.ndarray
+) -> dict[str, np.ndarray | None]:
+    """Single-step (teacher-forced) predictions: the TRUE velocities fed at every step.
+
+    points_body (B, N, 3) body frame; orientation0_xyzw (B, 4) at step 0; linear_velocity,
+    angular_velocity (B, S, 3) true, world frame. Returns ``delta_*`` (B, S, 3) float64 and
+    ``topple_probability`` (B, S) (the predicted label of step t+1) or None.
+    """
+    points = world_oriented_points(_numpy(points_body), _numpy(orientation0_xyzw)).astype(np.float32)
+    pred = model.predict_window(points, np.asarray(linear_velocity, np.float32), np.asarray(angular_velocity, np.float32))
+    out: dict[str, np.ndarray | None] = {k: _numpy(getattr(pred, k)) for k in DELTA_KEYS}
+    out["topple_probability"] = None if pred.topple_probability is None else _numpy(pred.topple_probability)
+    return out

@@ -1,0 +1,19 @@
+"""The report folder: metrics.json (valid JSON, NaN as null), a Markdown table and PNG plots."""
+
+import json
+
+from physdyn.eval.evaluate import compare
+from physdyn.eval.report import write_report
+
+
+def test_report_files_from_a_baseline_comparison(tiny_store, tmp_path):
+    comparison = compare("stay_put", tiny_store, baselines=("coulomb_slide",))
+    paths = write_report(comparison, tmp_path / "out")
+    data = json.loads(paths["metrics"].read_text())  # strict JSON: the baselines' NaN axis error became null
+    assert data["results"]["stay_put"]["headline"]["axis"] is None
+    assert data["verdict"] == comparison["verdict"]
+    table = [line for line in paths["report"].read_text().splitlines() if line.startswith("| ")]
+    assert len(table) == 3 and all(line.count("|") == table[0].count("|") for line in table)
+    assert "stay_put" in table[1] and "coulomb_slide" in table[2]
+    for key in ("error_vs_time", "per_category"):
+        assert paths[key].read_bytes()[:4] == b"\x89PNG" and paths[key].stat().st_size > 5000

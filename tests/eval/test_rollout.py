@@ -1,0 +1,193 @@
+"""Roll-outs: integration is exact on true changes, warm starts feed the truth, evaluation runs end to end."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from physdyn.data.store import load_store
+from physdyn.data.windows import world_oriented_points
+from physdyn.eval.baselines import CheckpointError, load_checkpoint
+from physdyn.eval.evaluate import EvaluationError, compare, evaluate, gather_truth, select_sequences
+from physdyn.eval.metrics import rotation_angle_deg
+from physdyn.eval.rollout import DELTA_KEYS, integrate, rollout, teacher_forced
+from physdyn.models.dynamics_module import DynamicsPrediction
+from physdyn.models.training import fit, load_experiment_config
+from tests.conftest import run_cli
+from tests.models.conftest import QUICKSTART, shrunk_overrides
+
+
+@pytest.fixture(scope="module")
+def tiny_checkpoint(tiny_store, tmp_path_factory):
+    """A real (few-step) quickstart checkpoint trained on the tiny store."""
+    out = tmp_path_factory.mktemp("eval_run")
+    return str(fit(load_experiment_config(QUICKSTART, shrunk_overrides(tiny_store, out, "trainer.max_steps=20"))).last_checkpoint)
+
+
+@pytest.fixture(scope="module")
+def store(tiny_store):
+    return load_store(tiny_store)
+
+
+def _first_states(truth):
+    return (truth["com_position"][:, 0], truth["orientation_xyzw"][:, 0], truth["linear_velocity"][:, 0],
+            truth["angular_velocity"][:, 0])
+
+
+def test_integrating_true_changes_reproduces_the_stored_trajectories(store):
+    sims = np.arange(store.num_sims)[:: max(1, store.num_sims // 20)]
+    truth = gather_truth(store, sims)
+    p0, q0, v0, w0 = _first_states(truth)
+    out = integrate(p0, q0, v0, w0, {k: truth[k] for k in DELTA_KEYS})
+    for key in ("com_position", "linear_velocity", "angular_velocity"):
+        np.testing.assert_allclose(out[key], truth[key], atol=1e-9, err_msg=key)
+    assert rotation_angle_deg(out["orientation_xyzw"], truth["orientation_xyzw"]).max() < 1e-5
+    np.testing.assert_allclose(np.linalg.norm(out["orientation_xyzw"], axis=-1), 1.0, atol=1e-12)
+    assert truth["toppled"].any()  # the check covered real toppling rotations too
+
+
+class ReplayTruth:
+    """A stand-in predictor that returns the true changes of the sequences it is rolled out on."""
+
+    def __init__(self, truth):
+        self.truth, self.t, self.points = truth, 0, None
+
+    def encode_points(self, points):
+        self.points = points
+        return torch.zeros(len(points), 1)
+
+    def step(self, feature, v, w, state):
+        t = self.t
+        self.t += 1
+        d = [torch.as_tensor(self.truth[k][:, t]) for k in DELTA_KEYS]
+        return DynamicsPrediction(*d, topple_probability=torch.full((len(v),), 0.25), state=(state or 0) + 1)
+
+
+def test_rollout_loop_with_true_changes_is_exact_and_orients_the_cloud(store):
+    sims = select_sequences(store, "test")[:6]
+    truth = gather_truth(store, sims)
+    p0, q0, v0, w0 = _first_states(truth)
+    points = store.points[store.shape_id[sims]]
+    model = ReplayTruth(truth)
+    S = truth["delta_position"].shape[1]
+    out = rollout(model, points, q0, p0, v0, w0, S)
+    np.testing.assert_allclose(model.points, world_oriented_points(points, q0), atol=1e-6)
+    np.testing.assert_allclose(out.com_position, truth["com_position"], atol=1e-6)  # float32 changes
+    np.testing.assert_allclose(out.linear_velocity, truth["linear_velocity"], atol=1e-5)
+    assert rotation_angle_deg(out.orientation_xyzw, truth["orientation_xyzw"]).max() < 1e-3
+    # the fed velocities are the roll-out's own (here: the truth, up to float32 rounding)
+    np.testing.assert_array_equal(out.fed_linear_velocity, out.linear_velocity[:, :-1])
+    assert out.topple_probability.shape == (6, S + 1)
+    assert np.all(out.topple_probability[:, 0] == 0) and np.all(out.topple_probability[:, 1:] == 0.25)
+
+
+def test_warm_start_feeds_the_true_velocities_first(store, tiny_checkpoint):
+    model = load_checkpoint(tiny_checkpoint)
+    sims = select_sequences(store, "test")[:4]
+    truth = gather_truth(store, sims, num_steps=12)
+    p0, q0, v0, w0 = _first_states(truth)
+    points = store.points[store.shape_id[sims]][:, : model.num_points]
+    K = 3
+    warm = (truth["linear_velocity"][:, 1:K + 1], truth["angular_velocity"][:, 1:K + 1])
+    out = rollout(model, points, q0, p0, v0, w0, 12, warm_start_velocities=warm)
+    np.testing.assert_allclose(out.fed_linear_velocity[:, :K + 1], truth["linear_velocity"][:, :K + 1], atol=1e-12)
+    np.testing.assert_allclose(out.fed_angular_velocity[:, :K + 1], truth["angular_velocity"][:, :K + 1], atol=1e-12)
+    # after the warm start the model's own predictions are fed back
+    np.testing.assert_allclose(out.fed_linear_velocity[:, K + 1],
+                               truth["linear_velocity"][:, K] + out.delta_linear_velocity[:, K], atol=1e-12)
+    assert not np.allclose(out.fed_linear_velocity[:, K + 1], truth["linear_velocity"][:, K + 1], atol=1e-4)
+    cold = rollout(model, points, q0, p0, v0, w0, 12)
+    np.testing.assert_allclose(cold.fed_linear_velocity[:, 1], v0 + cold.delta_linear_velocity[:, 0], atol=1e-12)
+    # without a warm start the velocity track is the integrated one, and the recurrent state is carried:
+    # the same inputs at every step as teacher forcing give the same changes
+    np.testing.assert_array_equal(cold.linear_velocity[:, :-1], cold.fed_linear_velocity)
+    full = rollout(model, points, q0, p0, v0, w0, 12, (truth["linear_velocity"][:, 1:12], truth["angular_velocity"][:, 1:12]))
+    forced = teacher_forced(model, points, q0, truth["linear_velocity"][:, :12], truth["angular_velocity"][:, :12])
+    for key in DELTA_KEYS:
+        np.testing.assert_allclose(full.deltas()[key], forced[key], atol=1e-5, err_msg=key)
+    np.testing.assert_allclose(full.topple_probability[:, 1:], forced["topple_probability"], atol=1e-6)
+
+
+def test_any_horizon(store, tiny_checkpoint):
+    model = load_checkpoint(tiny_checkpoint)
+    sims = select_sequences(store, "test")[:2]
+    truth = gather_truth(store, sims)
+    p0, q0, v0, w0 = _first_states(truth)
+    points = store.points[store.shape_id[sims]][:, : model.num_points]
+    for steps in (0, 1, 150):
+        out = rollout(model, points, q0, p0, v0, w0, steps)
+        assert out.com_position.shape == (2, steps + 1, 3) and out.orientation_xyzw.shape == (2, steps + 1, 4)
+        assert out.delta_rotation.shape == (2, steps, 3) and out.topple_probability.shape == (2, steps + 1)
+        np.testing.assert_array_equal(out.com_position[:, 0], p0)
+        assert np.isfinite(out.com_position).all()
+        np.testing.assert_allclose(np.linalg.norm(out.orientation_xyzw, axis=-1), 1.0, atol=1e-12)
+    with pytest.raises(ValueError, match="warm_start_velocities"):
+        rollout(model, points, q0, p0, v0, w0, 3, (np.zeros((2, 1, 3)), np.zeros((1, 1, 3))))
+
+
+def test_evaluation_end_to_end_with_a_real_checkpoint(store, tiny_checkpoint):
+    result = evaluate(tiny_checkpoint, store, warm_start=1)
+    n_test = int(np.sum(store.split == 2))
+    assert result["num_sequences"] == n_test and result["warm_start"] == 1
+    groups = result["rollout"]
+    assert groups["non_toppling"]["count"] + groups["toppling"]["count"] == groups["all"]["count"] == n_test
+    assert groups["non_toppling"]["count"] == int(np.sum((store.split == 2) & ~store.toppled))
+    assert result["headline"]["count"] == groups["non_toppling"]["count"]
+    for key in ("linear_velocity", "angular_velocity", "position", "angle_deg"):
+        assert np.isfinite(groups["all"]["rollout"][key]) and np.isfinite(groups["all"]["single_step"][key])
+    assert set(result["per_category"]) <= set(store.category_names)
+    assert sum(c["all"]["count"] for c in result["per_category"].values()) == n_test
+    topple = result["topple"]
+    assert topple["tp"] + topple["fn"] == int(np.sum((store.split == 2) & store.toppled))
+    curves = result["curves"]["all"]
+    assert len(curves["position_m"]) == int(store.lengths()[store.split == 2].max())
+    assert curves["position_m"][0] == pytest.approx(0.0)
+    json.dumps(result)  # JSON-ready
+    # a category filter and the per-sequence table agree with the full run
+    cat = store.category_names[int(store.sim_category()[store.split == 2][0])]
+    sub = evaluate(tiny_checkpoint, store, categories=[cat])
+    assert sub["num_sequences"] == result["per_category"][cat]["all"]["count"]
+    with pytest.raises(EvaluationError, match="unknown category"):
+        evaluate(tiny_checkpoint, store, categories=["chairs"])
+
+
+def test_compare_names_the_verdict_and_takes_checkpoints_as_baselines(store, tiny_checkpoint):
+    out = compare(tiny_checkpoint, store, baselines=("stay_put", "coulomb_slide", tiny_checkpoint))
+    names = [row["predictor"] for row in out["table"]]
+    assert names[0] == out["model"] and {"stay_put", "coulomb_slide"} <= set(names) and len(names) == 4
+    ours = out["results"][out["model"]]["headline"]["final_position_m_median"]
+    slide = out["results"]["coulomb_slide"]["headline"]["final_position_m_median"]
+    assert ("does not beat" in out["verdict"]) == (ours >= slide)
+    assert "Coulomb" in out["verdict"] and "median final position error" in out["verdict"]
+
+
+def test_a_file_that_is_not_a_physdyn_checkpoint_is_a_clear_error(tmp_path):
+    other = tmp_path / "other.ckpt"
+    torch.save({"state_dict": {}, "epoch": 3}, other)
+    text = tmp_path / "notes.ckpt"
+    text.write_text("hello")
+    for path, match in ((other, "not a physdyn DynamicsModel checkpoint"), (text, "not a PyTorch checkpoint"),
+                        (tmp_path / "missing.ckpt", "no checkpoint file")):
+        with pytest.raises(CheckpointError, match=match) as info:
+            load_checkpoint(path)
+        assert "\n" not in str(info.value)
+
+
+def test_physdyn_test_command_writes_the_report(tiny_store, tiny_checkpoint, tmp_path):
+    out = tmp_path / "report"
+    proc = run_cli("test", "--checkpoint", tiny_checkpoint, "--data", tiny_store, "--out", str(out), "--warm-start", "1",
+                   "--baseline-checkpoint", tiny_checkpoint)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "Coulomb-sliding baseline" in proc.stdout
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert len(metrics["table"]) == 4 and metrics["results"][metrics["model"]]["warm_start"] == 1
+    assert (out / "report.md").read_text().count("coulomb_slide") >= 1
+    for png in ("rollout_error_vs_time.png", "errors_per_category.png"):
+        assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    bad = tmp_path / "bad.ckpt"
+    torch.save({"weights": [1, 2]}, bad)
+    proc = run_cli("test", "--checkpoint", str(bad), "--data", tiny_store, "--out", str(tmp_path / "x"))
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "not a physdyn DynamicsModel checkpoint" in lines[0]
