@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
 import sys
 import warnings
@@ -47,6 +48,9 @@ def main(argv: list[str] | None = None) -> int:
     except PhysdynError as exc:
         print(f"physdyn {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # `physdyn components | head`: the reader left; not an error
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except KeyboardInterrupt as exc:
         detail = f": {exc}" if str(exc) else ""
         print(f"physdyn {args.command}: interrupted{detail}", file=sys.stderr)

@@ -17,6 +17,8 @@ from physdyn.registry import SHAPE_FAMILIES
 
 @SHAPE_FAMILIES.register("bottles")
 class Bottles(ShapeFamily):
+    """Solid revolved bottles: rounded base, optional taper, shoulder, neck and lip."""
+
     @dataclass
     class Config:
         height_min: float = 0.12  # m, overall

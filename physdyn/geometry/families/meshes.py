@@ -26,7 +26,7 @@ def list_mesh_files(folder: Path, recursive: bool = True) -> list[Path]:
 
 @SHAPE_FAMILIES.register("meshes")
 class MeshFolder(ShapeFamily):
-    """One instance per file; ``make`` ignores ``rng`` (a file is what it is)."""
+    """Every mesh file in a folder (meshes.dir), one instance per file; ``make`` ignores ``rng``."""
 
     Config = MeshFolderConfig
 

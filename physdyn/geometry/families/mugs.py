@@ -24,6 +24,8 @@ from physdyn.registry import SHAPE_FAMILIES
 
 @SHAPE_FAMILIES.register("mugs")
 class Mugs(ShapeFamily):
+    """Open cups with a wall, a solid bottom and a handle, as one watertight body."""
+
     @dataclass
     class Config:
         height_min: float = 0.07  # m

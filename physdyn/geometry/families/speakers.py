@@ -57,6 +57,8 @@ def cabinet(extents: np.ndarray, edge: str, radius: float) -> trimesh.Trimesh:
 
 @SHAPE_FAMILIES.register("speakers")
 class Speakers(ShapeFamily):
+    """Cabinets with sharp, rounded or bevelled edges, some on feet, some with front recesses."""
+
     @dataclass
     class Config:
         width_min: float = 0.1  # m, along x

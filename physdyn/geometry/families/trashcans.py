@@ -23,6 +23,8 @@ CROSS_SECTIONS: Dict[str, int] = {"round": 24, "square": 4, "hexagonal": 6, "oct
 
 @SHAPE_FAMILIES.register("trashcans")
 class Trashcans(ShapeFamily):
+    """Open-top bins: round, square or polygonal, straight or tapered, with a wall and an optional rim."""
+
     @dataclass
     class Config:
         # Relative odds of each cross-section. Overrides merge into these keys: set a shape to 0 to drop it.
