@@ -18,11 +18,23 @@ install: system-deps
 	$(PYTHON) -m pip install -q -e ".[dev,ray]"
 
 quickstart: install
-	@# Re-runnable: a finished store is kept, an interrupted one is resumed.
+	@# The main job, re-runnable: finished steps are kept, interrupted ones resumed.
 	@if physdyn data info data/quickstart.zarr >/dev/null 2>&1; then echo "data/quickstart.zarr exists; kept"; \
 	else physdyn simulate --config configs/data/quickstart.yaml --out data/quickstart.zarr --workers $(WORKERS) \
 		$$([ -d data/quickstart.zarr ] && echo --resume); fi
 	physdyn data info data/quickstart.zarr
+	@if [ -f runs/quickstart/finished.json ]; then echo "runs/quickstart is trained; kept"; \
+	else physdyn fit --config configs/experiment/quickstart.yaml $$([ -f runs/quickstart/last.ckpt ] && echo --resume); fi
+	physdyn test --checkpoint runs/quickstart/best.ckpt --data data/quickstart.zarr --out reports/quickstart --overwrite
+	physdyn predict examples/meshes/bracket_mm.obj --scale 0.001 --lin-vel 1.2 0 0 --ang-vel 0 0 3 --seconds 4 \
+		--checkpoint runs/quickstart/best.ckpt --compare-sim --out reports/quickstart/bracket.json \
+		--render reports/quickstart/bracket.gif --overwrite
+	@echo
+	@echo "results:"
+	@echo "  dataset        data/quickstart.zarr        (physdyn data info data/quickstart.zarr)"
+	@echo "  model          runs/quickstart/best.ckpt   (logs: runs/quickstart/csv, runs/quickstart/tensorboard)"
+	@echo "  test report    reports/quickstart/report.md, metrics.json, *.png"
+	@echo "  prediction     reports/quickstart/bracket.json, reports/quickstart/bracket.gif"
 
 test: install
 	$(PYTHON) -m pytest

@@ -27,6 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--categories", nargs="+", metavar="NAME", help="evaluate only these categories")
     p.add_argument("--baseline-checkpoint", action="append", default=[], metavar="CKPT",
                    help="another model checkpoint to compare with, e.g. the MLP baseline (repeatable)")
+    p.add_argument("--overwrite", action="store_true", help="replace a report already in --out")
     p.set_defaults(func=run, parser=p)
 
 
@@ -34,17 +35,18 @@ def run(args: argparse.Namespace) -> int:
     from physdyn.errors import PhysdynError
     from physdyn.eval.baselines import load_checkpoint
     from physdyn.eval.evaluate import compare
-    from physdyn.eval.report import write_report
+    from physdyn.eval.report import check_report_target, write_report
 
     if args.warm_start < 0:
         raise PhysdynError(f"--warm-start must be >= 0, got {args.warm_start}")
+    check_report_target(args.out, args.overwrite)
     model = load_checkpoint(args.checkpoint)
     data = args.data or model.data_info.get("store")
     if not data:
         raise PhysdynError(f"{args.checkpoint} does not record its store; pass --data STORE")
     baselines = ["stay_put", "coulomb_slide", *(load_checkpoint(c) for c in args.baseline_checkpoint)]
     result = compare(model, data, baselines, split=args.split, warm_start=args.warm_start, categories=args.categories)
-    paths = write_report(result, args.out)
+    paths = write_report(result, args.out, overwrite=args.overwrite)
     head = result["results"][result["model"]]["headline"]
     print(f"{result['model']} on {head['count']} non-toppling {args.split} sequences: "
           f"position {head['position']:.4g} m/step, final position (median) {head['final_position_m_median']:.4g} m")

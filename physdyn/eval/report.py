@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from physdyn.errors import PhysdynError
+
 from physdyn.eval.metrics import ERROR_KEYS
 
 UNITS = {"linear_velocity": "m/s", "angular_velocity": "rad/s", "position": "m", "angle_deg": "deg", "axis": "1 - cos"}
@@ -100,12 +102,23 @@ def plot_errors_per_category(comparison: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def write_report(comparison: dict, out_dir: str | Path) -> dict[str, Path]:
+REPORT_FILES = {"metrics": "metrics.json", "report": "report.md",
+                "error_vs_time": "rollout_error_vs_time.png", "per_category": "errors_per_category.png"}
+
+
+def check_report_target(out_dir: str | Path, overwrite: bool = False) -> None:
+    """Refuse to replace an earlier report unless asked: call before spending time on an evaluation."""
+    existing = [name for name in REPORT_FILES.values() if (Path(out_dir) / name).exists()]
+    if existing and not overwrite:
+        raise PhysdynError(f"{out_dir} already holds a report ({existing[0]}); pass --overwrite to replace it or choose another --out")
+
+
+def write_report(comparison: dict, out_dir: str | Path, overwrite: bool = False) -> dict[str, Path]:
     """Write the files listed in the module docstring into ``out_dir``; returns name -> path."""
+    check_report_target(out_dir, overwrite)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    paths = {"metrics": out / "metrics.json", "report": out / "report.md",
-             "error_vs_time": out / "rollout_error_vs_time.png", "per_category": out / "errors_per_category.png"}
+    paths = {key: out / name for key, name in REPORT_FILES.items()}
     paths["metrics"].write_text(json.dumps(_clean(comparison), indent=1))
     paths["report"].write_text(markdown(comparison))
     plot_error_vs_time(comparison, paths["error_vs_time"])

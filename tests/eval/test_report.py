@@ -17,3 +17,18 @@ def test_report_files_from_a_baseline_comparison(tiny_store, tmp_path):
     assert "stay_put" in table[1] and "coulomb_slide" in table[2]
     for key in ("error_vs_time", "per_category"):
         assert paths[key].read_bytes()[:4] == b"\x89PNG" and paths[key].stat().st_size > 5000
+
+
+def test_an_existing_report_is_kept_unless_overwrite(tiny_store, tmp_path):
+    import pytest
+
+    from physdyn.errors import PhysdynError
+
+    comparison = compare("stay_put", tiny_store, baselines=("coulomb_slide",))
+    paths = write_report(comparison, tmp_path / "out")
+    paths["report"].write_text("my annotated report")
+    with pytest.raises(PhysdynError, match="--overwrite"):
+        write_report(comparison, tmp_path / "out")
+    assert paths["report"].read_text() == "my annotated report"
+    write_report(comparison, tmp_path / "out", overwrite=True)
+    assert paths["report"].read_text() != "my annotated report"
