@@ -16,6 +16,8 @@ install: system-deps
 	@# torch first and exactly: the local CPU build; a newer torch would pull GBs of CUDA wheels.
 	$(PYTHON) -m pip install -q torch==2.13.0
 	$(PYTHON) -m pip install -q -e ".[dev,ray]"
+	@# The example encoder plugin, so the tests train it beside the built-ins (no deps: torch stays put).
+	$(PYTHON) -m pip install -q --no-deps --no-build-isolation -e plugins/physdyn-dgcnn
 
 quickstart: install
 	@# The main job, re-runnable: finished steps are kept, interrupted ones resumed.
