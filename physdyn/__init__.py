@@ -1,3 +1,12 @@
 """physdyn: learn to predict the physical dynamics of unseen 3D objects (Rempe et al., WACV 2020)."""
 
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str):
+    # Lazy: `import physdyn` stays light; torch and the model load only when a predictor is asked for.
+    if name == "load_predictor":
+        from physdyn.eval.predict import load_predictor
+
+        return load_predictor
+    raise AttributeError(f"module 'physdyn' has no attribute {name!r}")

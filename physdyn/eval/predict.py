@@ -1,0 +1,523 @@
+"""Predicting how a user's mesh moves after a push, and writing the prediction file.
+
+``load_predictor()`` gives a ``Predictor`` around a trained ``DynamicsModel`` (the bundled one by default);
+``Predictor.predict(mesh, lin_vel, ang_vel, seconds)`` places the object at rest on the ground as the
+conventions say (docs/conventions.md, "Initial condition"), rolls the model out and returns a dict with
+the keys of a prediction file ("Prediction output"). ``compare_sim=True`` adds the same keys from PyBullet,
+started from the same state, under ``simulated``. ``write_prediction`` writes JSON, .npz or .csv (layout:
+docs/predict.md); ``read_prediction`` reads any of the three back.
+
+Arrays in a result are float64 numpy arrays: T = round(seconds * rate_hz) + 1 steps, step 0 included.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import tempfile
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from physdyn.errors import PhysdynError
+
+BUNDLED_CHECKPOINT = Path(__file__).resolve().parents[1] / "assets" / "bundled.ckpt"
+OUTPUT_EXTENSIONS = (".json", ".npz", ".csv")
+STEP_KEYS = ("time", "com_position", "orientation_xyzw", "linear_velocity", "angular_velocity", "topple_probability")
+SCALAR_KEYS = ("rate_hz", "toppled", "com_mesh", "mesh", "checkpoint")
+# CSV column suffixes of the per-step vectors.
+_COMPONENTS = {"com_position": "xyz", "orientation_xyzw": "xyzw", "linear_velocity": "xyz", "angular_velocity": "xyz"}
+_CSV_COLUMN_BASE = {"orientation_xyzw": "orientation"}
+DEFAULT_NUM_POINTS = 1024
+POINTS_SEED = 0  # fixed: the same mesh always gets the same cloud, so predictions are reproducible
+SIMULATOR_NAME = "pybullet"
+IN_MEMORY = "<in-memory>"
+_CSV_SCALAR = re.compile(r"^# ([A-Za-z_]+): (.*)$")  # "# rate_hz: 15.0": a scalar key and its JSON value
+
+
+class PredictionError(PhysdynError):
+    """Bad input to a prediction: a vector, a duration, an output path."""
+
+
+class PredictionWarning(UserWarning):
+    """Something the user should know about a prediction that still runs (e.g. an open mesh)."""
+
+
+# --------------------------------------------------------------------------------------------------
+# Input checks
+# --------------------------------------------------------------------------------------------------
+def as_vector(value: Any, name: str, length: int = 3) -> np.ndarray:
+    """``value`` as a finite float64 vector of ``length``; a one-line ``PredictionError`` naming ``name``."""
+    try:
+        vec = np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise PredictionError(f"{name} must be {length} numbers, got {value!r}") from None
+    if np.ndim(value) > 1 or vec.size != length:
+        raise PredictionError(f"{name} must be {length} numbers, got {vec.size} ({_short(value)})")
+    if not np.isfinite(vec).all():
+        raise PredictionError(f"{name} must be finite, got {_short(value)}; pass {length} real numbers")
+    return vec
+
+
+def check_seconds(seconds: Any) -> float:
+    try:
+        s = float(seconds)
+    except (TypeError, ValueError):
+        raise PredictionError(f"seconds must be a number, got {seconds!r}") from None
+    if not math.isfinite(s) or s <= 0:
+        raise PredictionError(f"seconds must be a positive number, got {seconds!r}; e.g. --seconds 3")
+    return s
+
+
+def check_orientation(orientation_xyzw: Any) -> np.ndarray:
+    """Unit quaternion (x, y, z, w) from ``orientation_xyzw``; identity (the mesh frame as is) for None."""
+    if orientation_xyzw is None:
+        return np.array([0.0, 0.0, 0.0, 1.0])
+    q = as_vector(orientation_xyzw, "orientation (x, y, z, w)", 4)
+    norm = float(np.linalg.norm(q))
+    if norm < 1e-9:
+        raise PredictionError("orientation (x, y, z, w) is the zero quaternion; pass a rotation, e.g. 0 0 0 1")
+    return q / norm
+
+
+def check_output_path(path: str | Path, overwrite: bool = False, extensions: Sequence[str] = OUTPUT_EXTENSIONS,
+                      what: str = "output") -> Path:
+    """Refuse an unsupported extension, or an existing file unless ``overwrite``, before any work is done."""
+    path = Path(path).expanduser()
+    ext = path.suffix.lower()
+    if ext not in extensions:
+        raise PredictionError(f"{what} {path}: unsupported extension '{ext or '(none)'}'; use one of {', '.join(extensions)}")
+    if path.is_dir():
+        raise PredictionError(f"{what} {path} is a folder; pass a file name such as {path / ('prediction' + extensions[0])}")
+    if path.exists() and not overwrite:
+        raise PredictionError(f"{what} {path} already exists; pass --overwrite (overwrite=True) to replace it")
+    return path
+
+
+def _short(value: Any) -> str:
+    text = " ".join(str(v) for v in np.ravel(value)) if np.ndim(value) else str(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+# --------------------------------------------------------------------------------------------------
+# The object
+# --------------------------------------------------------------------------------------------------
+@dataclass
+class PreparedBody:
+    """A mesh made into a rigid body: cleaned mesh (mesh frame, metres), its ``RigidBodySpec`` and where it
+    came from. ``notes``: one-line warnings (e.g. the convex hull was used for the mass properties)."""
+
+    mesh: Any
+    spec: Any
+    name: str
+    notes: list[str] = field(default_factory=list)
+    _points: dict[int, np.ndarray] = field(default_factory=dict, repr=False)
+
+    def points_body(self, num_points: int) -> np.ndarray:
+        """(num_points, 3) float32 surface points in the body frame (mesh axes, origin at the com)."""
+        if num_points not in self._points:
+            from physdyn.config import DataConfig
+            from physdyn.geometry.sampling import sample_surface_points
+
+            pts = sample_surface_points(self.mesh, num_points, DataConfig().oversample, seed=POINTS_SEED)
+            self._points[num_points] = (pts - self.spec.com_mesh).astype(np.float32)
+        return self._points[num_points]
+
+
+def prepare_body(mesh: Any, scale: float = 1.0, density: float | None = None) -> PreparedBody:
+    """A mesh file path or ``trimesh.Trimesh`` -> ``PreparedBody``. Exact mass properties of the solid, or
+    of its convex hull (with a note) when the mesh is not a closed volume. Raises ``ShapeError``."""
+    import trimesh
+
+    from physdyn.config import MassConfig
+    from physdyn.errors import ShapeError
+    from physdyn.geometry.mass import exact_mass_properties
+    from physdyn.geometry.mesh_io import check_mesh, load_mesh, prepare_mesh
+    from physdyn.sim.body import RigidBodySpec
+
+    if isinstance(mesh, PreparedBody):
+        return mesh
+    if isinstance(mesh, trimesh.Trimesh):
+        if not np.isfinite(scale) or scale <= 0:
+            raise ShapeError(f"mesh {IN_MEMORY}: scale must be a positive number, got {scale}")
+        name = IN_MEMORY
+        raw = mesh.copy()
+        if scale != 1.0:
+            raw.apply_scale(scale)
+        check_mesh(raw, name)
+    elif isinstance(mesh, (str, os.PathLike)):
+        name = str(mesh)
+        raw = load_mesh(mesh, scale)
+    else:
+        raise PredictionError(f"mesh must be a file path or a trimesh.Trimesh, got {type(mesh).__name__}")
+    prepared = prepare_mesh(raw, name)
+    density = MassConfig().density if density is None else float(density)
+    solid = prepared.mesh if prepared.watertight else prepared.mesh.convex_hull
+    props = exact_mass_properties(solid, density)
+    if not np.isfinite(props.mass) or props.mass <= 0:
+        raise ShapeError(f"mesh {name} has no positive volume; check it is a closed solid")
+    spec = RigidBodySpec.from_mesh(prepared.mesh, props)
+    return PreparedBody(mesh=prepared.mesh, spec=spec, name=name, notes=list(prepared.warnings))
+
+
+def initial_pose(spec: Any, orientation_xyzw: np.ndarray) -> np.ndarray:
+    """The centre of mass (3,) of the object at rest in this orientation: lowest point on z = 0, x = y = 0."""
+    from physdyn.sim.trajectory import resting_com_position
+
+    return resting_com_position(spec, orientation_xyzw)
+
+
+# --------------------------------------------------------------------------------------------------
+# Simulation from a given state
+# --------------------------------------------------------------------------------------------------
+def simulate_from_state(spec: Any, orientation_xyzw: np.ndarray, lin_vel: np.ndarray, ang_vel: np.ndarray,
+                        rate_hz: float, num_steps: int, physics: Any = None) -> dict[str, np.ndarray]:
+    """PyBullet from the state right after a push: the body at rest in ``orientation_xyzw`` (mesh frame),
+    given the velocities directly (no impulse), recorded at ``rate_hz`` for ``num_steps`` steps.
+
+    Once the body has been at rest for ``physics.rest_duration`` the rest is padded with the resting pose
+    and zero velocities. Returns ``com_position`` (T, 3), ``orientation_xyzw`` (T, 4) of the mesh frame,
+    ``linear_velocity`` (T, 3), ``angular_velocity`` (T, 3), ``topple_label`` (T,) bool (the 45° rule).
+    """
+    from physdyn.config import PhysicsConfig
+    from physdyn.geometry.rotations import canonical_quat, matrix_to_quat, quat_conjugate, quat_multiply
+    from physdyn.sim.bullet import pb
+    from physdyn.sim.trajectory import resting_com_position, steps_per_frame, topple_labels
+    from physdyn.sim.world import PhysicsWorld
+
+    phys = physics or PhysicsConfig()
+    every = steps_per_frame(phys.time_step, rate_hz)
+    q_mesh0 = np.asarray(orientation_xyzw, dtype=np.float64)
+    q_principal = matrix_to_quat(spec.principal_axes)
+    rest_needed = int(np.ceil(phys.rest_duration / phys.time_step - 1e-9))
+    positions, quats, lin, ang = [], [], [], []
+    with PhysicsWorld(phys) as world:
+        cid = world.client
+        body = world.add_body(spec)
+        # PyBullet's base frame is the principal frame: R_base = R_mesh @ A (as physdyn.sim.trajectory).
+        com0 = resting_com_position(spec, q_mesh0)
+        pb.resetBasePositionAndOrientation(body, com0.tolist(), quat_multiply(q_mesh0, q_principal).tolist(), physicsClientId=cid)
+        pb.resetBaseVelocity(body, list(map(float, lin_vel)), list(map(float, ang_vel)), physicsClientId=cid)
+        rest_steps, step = 0, 0
+        while True:
+            if step % every == 0:
+                pos, orn = pb.getBasePositionAndOrientation(body, physicsClientId=cid)
+                v, w = pb.getBaseVelocity(body, physicsClientId=cid)
+                positions.append(pos)
+                quats.append(orn)
+                lin.append(v)
+                ang.append(w)
+                if len(positions) >= num_steps or rest_steps >= rest_needed:
+                    break
+            pb.stepSimulation(physicsClientId=cid)
+            step += 1
+            v, w = pb.getBaseVelocity(body, physicsClientId=cid)
+            at_rest = np.dot(v, v) < phys.rest_linear_speed**2 and np.dot(w, w) < phys.rest_angular_speed**2
+            rest_steps = rest_steps + 1 if at_rest else 0
+    # Back to the mesh frame: R_mesh = R_base @ A^T.
+    orientation = canonical_quat(quat_multiply(np.asarray(quats, dtype=np.float64), quat_conjugate(q_principal)))
+    orientation /= np.linalg.norm(orientation, axis=1, keepdims=True)
+    out = {
+        "com_position": np.asarray(positions, dtype=np.float64),
+        "orientation_xyzw": orientation,
+        "linear_velocity": np.asarray(lin, dtype=np.float64),
+        "angular_velocity": np.asarray(ang, dtype=np.float64),
+    }
+    recorded = len(positions)
+    if recorded < num_steps:
+        pad = num_steps - recorded
+        for key in ("com_position", "orientation_xyzw"):
+            out[key] = np.concatenate([out[key], np.repeat(out[key][-1:], pad, axis=0)])
+        for key in ("linear_velocity", "angular_velocity"):
+            out[key] = np.concatenate([out[key], np.zeros((pad, 3))])
+    out["topple_label"] = topple_labels(out["orientation_xyzw"])[0]
+    return out
+
+
+# --------------------------------------------------------------------------------------------------
+# The predictor
+# --------------------------------------------------------------------------------------------------
+class Predictor:
+    """A trained ``DynamicsModel`` ready to predict users' meshes.
+
+    model: a ``DynamicsModel``; name: what the ``checkpoint`` key of a result says (a path or a name);
+    physics: the ``PhysicsConfig`` of ``compare_sim`` runs (default: the conventions' defaults).
+    """
+
+    def __init__(self, model: Any, name: str = "model", physics: Any = None):
+        self.model = model
+        self.name = str(name)
+        self.physics = physics
+
+    @property
+    def rate_hz(self) -> float:
+        return float(self.model.data_info.get("rate_hz") or 15.0)
+
+    @property
+    def num_points(self) -> int:
+        return int(getattr(self.model, "num_points", None) or self.model.data_info.get("num_points") or DEFAULT_NUM_POINTS)
+
+    def num_steps(self, seconds: float) -> int:
+        """T = round(seconds * rate_hz) + 1 (step 0 included)."""
+        return int(round(check_seconds(seconds) * self.rate_hz)) + 1
+
+    def predict(self, mesh: Any, lin_vel: Any, ang_vel: Any, seconds: float = 3.0, orientation_xyzw: Any = None,
+                scale: float = 1.0, compare_sim: bool = False) -> dict[str, Any]:
+        """Predict the motion of ``mesh`` (a file path, a ``trimesh.Trimesh`` or a ``PreparedBody``) resting
+        on the ground in ``orientation_xyzw`` (default: the mesh frame as is) with the post-push velocities
+        ``lin_vel`` (m/s) and ``ang_vel`` (rad/s, world axes) at step 0.
+
+        Returns the keys of a prediction file (docs/predict.md): ``rate_hz``, ``time`` (T,),
+        ``com_position`` (T, 3), ``orientation_xyzw`` (T, 4), ``linear_velocity`` (T, 3),
+        ``angular_velocity`` (T, 3), ``topple_probability`` (T,) or None, ``toppled``, ``com_mesh`` (3,),
+        ``mesh``, ``checkpoint``; with ``compare_sim`` also ``simulated`` with the same keys from PyBullet.
+        A note about the mesh (e.g. an open surface) is issued as a ``PredictionWarning``.
+        """
+        from physdyn.eval.rollout import rollout
+        from physdyn.sim.trajectory import topple_labels
+
+        v0 = as_vector(lin_vel, "linear velocity (lin_vel)")
+        w0 = as_vector(ang_vel, "angular velocity (ang_vel)")
+        T = self.num_steps(seconds)
+        q0 = check_orientation(orientation_xyzw)
+        body = prepare_body(mesh, scale)
+        for note in body.notes:
+            warnings.warn(note, PredictionWarning, stacklevel=2)
+        p0 = initial_pose(body.spec, q0)
+        points = body.points_body(self.num_points)
+        out = rollout(self.model, points[None], q0[None], p0[None], v0[None], w0[None], T - 1).sequence(0)
+        probability = out["topple_probability"]
+        if probability is not None:
+            toppled = bool(np.any(probability >= 0.5))
+        else:  # no topple head: the 45° rule on the predicted orientations
+            toppled = bool(topple_labels(out["orientation_xyzw"])[1] >= 0)
+        result = self._result(out, probability, toppled, body, self.name)
+        if compare_sim:
+            sim = simulate_from_state(body.spec, q0, v0, w0, self.rate_hz, T, self.physics)
+            result["simulated"] = self._result(sim, sim["topple_label"].astype(np.float64), bool(sim["topple_label"].any()),
+                                               body, SIMULATOR_NAME)
+        return result
+
+    def _result(self, states: dict, probability: Any, toppled: bool, body: PreparedBody, source: str) -> dict[str, Any]:
+        T = len(states["com_position"])
+        return {
+            "rate_hz": self.rate_hz,
+            "time": np.arange(T, dtype=np.float64) / self.rate_hz,
+            "com_position": np.asarray(states["com_position"], dtype=np.float64),
+            "orientation_xyzw": np.asarray(states["orientation_xyzw"], dtype=np.float64),
+            "linear_velocity": np.asarray(states["linear_velocity"], dtype=np.float64),
+            "angular_velocity": np.asarray(states["angular_velocity"], dtype=np.float64),
+            "topple_probability": None if probability is None else np.asarray(probability, dtype=np.float64),
+            "toppled": bool(toppled),
+            "com_mesh": np.asarray(body.spec.com_mesh, dtype=np.float64),
+            "mesh": body.name,
+            "checkpoint": source,
+        }
+
+
+def load_predictor(checkpoint: Any = None, physics: Any = None) -> Predictor:
+    """A ``Predictor`` from a `physdyn fit` checkpoint path, a loaded ``DynamicsModel``, or (None) the
+    model bundled with physdyn. Raises a one-line ``PhysdynError`` for anything else."""
+    from physdyn.eval.baselines import load_checkpoint
+
+    if checkpoint is None:
+        if not BUNDLED_CHECKPOINT.is_file():
+            raise PhysdynError(f"no bundled model in this installation ({BUNDLED_CHECKPOINT} is missing); "
+                               "pass a checkpoint of `physdyn fit` with --checkpoint CKPT (load_predictor(path))")
+        return Predictor(load_checkpoint(BUNDLED_CHECKPOINT), name="bundled", physics=physics)
+    if hasattr(checkpoint, "encode_points") and hasattr(checkpoint, "step"):
+        return Predictor(checkpoint, name="model", physics=physics)
+    if not isinstance(checkpoint, (str, os.PathLike)):
+        raise PhysdynError(f"checkpoint must be a path or a DynamicsModel, got {type(checkpoint).__name__}")
+    return Predictor(load_checkpoint(checkpoint), name=str(checkpoint), physics=physics)
+
+
+# --------------------------------------------------------------------------------------------------
+# Files
+# --------------------------------------------------------------------------------------------------
+def _flat(result: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``simulated`` nested keys -> ``simulated_<key>`` (npz and CSV cannot nest)."""
+    out: dict[str, Any] = {}
+    for key, value in result.items():
+        if key == "simulated" and isinstance(value, dict):
+            out.update(_flat(value, prefix + "simulated_"))
+        else:
+            out[prefix + key] = value
+    return out
+
+
+def _nest(flat: dict[str, Any]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    sim: dict[str, Any] = {}
+    for key, value in flat.items():
+        if key.startswith("simulated_"):
+            sim[key[len("simulated_"):]] = value
+        else:
+            out[key] = value
+    if sim:
+        out["simulated"] = sim
+    return out
+
+
+def to_jsonable(result: dict[str, Any]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in result.items():
+        if isinstance(value, dict):
+            out[key] = to_jsonable(value)
+        elif isinstance(value, np.ndarray):
+            out[key] = value.tolist()
+        elif isinstance(value, np.generic):
+            out[key] = value.item()
+        else:
+            out[key] = value
+    return out
+
+
+def write_prediction(result: dict[str, Any], path: str | Path, overwrite: bool = False) -> Path:
+    """Write ``result`` to ``path``: JSON, or .npz / .csv by the extension (docs/predict.md).
+
+    Written to a temporary file in the same folder and renamed into place, so a reader never sees half a
+    file. Refuses an existing ``path`` unless ``overwrite``.
+    """
+    path = check_output_path(path, overwrite)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    ext = path.suffix.lower()
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            if ext == ".json":
+                fh.write(json.dumps(to_jsonable(result), indent=1).encode())
+            elif ext == ".npz":
+                np.savez(fh, **_npz_arrays(result))
+            else:
+                fh.write(_csv_text(result).encode())
+        if not overwrite and path.exists():
+            raise PredictionError(f"output {path} appeared while writing; pass --overwrite to replace it")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def _npz_arrays(result: dict[str, Any]) -> dict[str, np.ndarray]:
+    arrays = {}
+    for key, value in _flat(result).items():
+        if value is None:  # a model without a topple head: NaN at every step (see docs/predict.md)
+            value = np.full(len(result["time"]), np.nan)
+        arrays[key] = np.asarray(value)
+    return arrays
+
+
+def _csv_columns(key: str) -> list[str]:
+    """CSV columns of a per-step key: vectors get one column per component (``com_position_x``...,
+    ``orientation_x``...``orientation_w``), scalars one column; a ``simulated_`` prefix is kept."""
+    for name, comps in _COMPONENTS.items():
+        if key == name or key.endswith("_" + name):
+            stem = key[: -len(name)] + _CSV_COLUMN_BASE.get(name, name)
+            return [f"{stem}_{c}" for c in comps]
+    return [key]
+
+
+def _csv_text(result: dict[str, Any]) -> str:
+    flat = _flat(result)
+    T = len(result["time"])
+    lines = ["# physdyn prediction: one row per step; scalars in these comment lines as JSON values"]
+    header: list[str] = []
+    columns: list[np.ndarray] = []
+    for key, value in flat.items():
+        is_step = key.split("simulated_", 1)[-1] in STEP_KEYS
+        if not is_step:
+            lines.append(f"# {key}: {json.dumps(to_jsonable({key: value})[key])}")
+            continue
+        arr = (np.full(T, np.nan) if value is None else np.asarray(value, dtype=np.float64)).reshape(T, -1)
+        header += _csv_columns(key)
+        columns.append(arr)
+    table = np.concatenate(columns, axis=1)
+    lines.append(",".join(header))
+    for row in table:
+        lines.append(",".join("" if np.isnan(x) else repr(float(x)) for x in row))
+    return "\n".join(lines) + "\n"
+
+
+def read_prediction(path: str | Path) -> dict[str, Any]:
+    """A prediction file (.json, .npz or .csv) -> the dict ``Predictor.predict`` returns (arrays as
+    float64 numpy arrays, ``topple_probability`` None where the model has no topple head)."""
+    path = Path(path)
+    ext = path.suffix.lower()
+    if ext == ".json":
+        raw = json.loads(path.read_text())
+        flat = _flat(raw)
+    elif ext == ".npz":
+        with np.load(path) as data:
+            flat = {k: data[k] for k in data.files}
+        for key, value in list(flat.items()):
+            if value.ndim == 0:
+                flat[key] = value.item()
+    elif ext == ".csv":
+        flat = _read_csv(path)
+    else:
+        raise PredictionError(f"{path}: unsupported extension '{ext}'; use one of {', '.join(OUTPUT_EXTENSIONS)}")
+    out = {}
+    for key, value in flat.items():
+        base = key.split("simulated_", 1)[-1]
+        if base == "topple_probability":
+            arr = None if value is None else np.asarray(value, dtype=np.float64)
+            out[key] = None if arr is None or np.isnan(arr).all() else arr
+        elif base in STEP_KEYS or base == "com_mesh":
+            out[key] = np.asarray(value, dtype=np.float64)
+        elif base == "toppled":
+            out[key] = bool(value)
+        elif base == "rate_hz":
+            out[key] = float(value)
+        else:
+            out[key] = str(value)
+    return _nest(out)
+
+
+def _read_csv(path: Path) -> dict[str, Any]:
+    flat: dict[str, Any] = {}
+    rows: list[list[str]] = []
+    header: list[str] | None = None
+    for line in path.read_text().splitlines():
+        if line.startswith("#"):
+            match = _CSV_SCALAR.match(line)
+            if match:
+                flat[match.group(1)] = json.loads(match.group(2))
+        elif header is None:
+            header = line.split(",")
+        elif line:
+            rows.append(line.split(","))
+    assert header is not None
+    table = np.array([[float(x) if x else np.nan for x in row] for row in rows], dtype=np.float64).reshape(len(rows), len(header))
+    index = {name: i for i, name in enumerate(header)}
+    for prefix in ("", "simulated_"):
+        for key in STEP_KEYS:
+            cols = _csv_columns(prefix + key)
+            if all(c in index for c in cols):
+                arr = table[:, [index[c] for c in cols]]
+                flat[prefix + key] = arr[:, 0] if len(cols) == 1 else arr
+    return flat
+
+
+def summary(result: dict[str, Any]) -> str:
+    """A few human lines: where the object ends, how far it turned, whether it toppled."""
+    from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_rotvec
+
+    lines = []
+    for label, res in (("prediction", result), ("simulation", result.get("simulated"))):
+        if res is None:
+            continue
+        p0, p1 = res["com_position"][0], res["com_position"][-1]
+        turn = quat_to_rotvec(quat_multiply(res["orientation_xyzw"][-1], quat_conjugate(res["orientation_xyzw"][0])))
+        lines.append(
+            f"{label} ({res['checkpoint']}), t = {res['time'][-1]:.2f} s: centre of mass at "
+            f"({p1[0]:.3f}, {p1[1]:.3f}, {p1[2]:.3f}) m, moved {np.linalg.norm(p1[:2] - p0[:2]):.3f} m, "
+            f"turned {np.degrees(np.linalg.norm(turn)):.1f} deg, toppled: {'yes' if res['toppled'] else 'no'}"
+        )
+    return "\n".join(lines)

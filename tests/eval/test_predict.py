@@ -1,0 +1,243 @@
+"""`physdyn predict` and the predictor API on users' own meshes, with a real (tiny) trained checkpoint."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+from PIL import Image
+
+import physdyn
+from physdyn.errors import PhysdynError
+from physdyn.eval.predict import (BUNDLED_CHECKPOINT, PredictionError, PredictionWarning, Predictor, load_predictor,
+                                  read_prediction, write_prediction)
+from physdyn.geometry.rotations import quat_to_matrix
+from physdyn.models.training import fit, load_experiment_config
+from tests.conftest import run_cli
+from tests.models.conftest import QUICKSTART, shrunk_overrides
+
+KEYS = {"rate_hz", "time", "com_position", "orientation_xyzw", "linear_velocity", "angular_velocity",
+        "topple_probability", "toppled", "com_mesh", "mesh", "checkpoint"}
+LIN, ANG, SECONDS = [1.2, 0.0, 0.0], [0.0, 0.0, 3.0], 2.0
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tiny_store, tmp_path_factory):
+    torch.set_num_threads(1)
+    out = tmp_path_factory.mktemp("predict_run")
+    return str(fit(load_experiment_config(QUICKSTART, shrunk_overrides(tiny_store, out, "trainer.max_steps=20"))).last_checkpoint)
+
+
+@pytest.fixture(scope="module")
+def meshes(tmp_path_factory):
+    """Users' meshes, not a procedural family: an off-centre box (.obj) and a cylinder (.stl)."""
+    folder = tmp_path_factory.mktemp("meshes")
+    box = trimesh.creation.box((0.08, 0.12, 0.2))
+    box.apply_translation([0.3, -0.1, 0.05])  # the mesh frame is not at the centre of mass
+    box.export(folder / "box.obj")
+    trimesh.creation.cylinder(radius=0.04, height=0.15, sections=24).export(folder / "can.stl")
+    return folder
+
+
+@pytest.fixture(scope="module")
+def cli_run(checkpoint, meshes, tmp_path_factory):
+    """One user run with every option: JSON out, the simulation beside, an animation."""
+    out = tmp_path_factory.mktemp("cli")
+    proc = run_cli("predict", str(meshes / "box.obj"), "--lin-vel", *map(str, LIN), "--ang-vel", *map(str, ANG),
+                   "--seconds", str(SECONDS), "--checkpoint", checkpoint, "--out", str(out / "box.json"),
+                   "--compare-sim", "--render", str(out / "box.gif"))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return out, proc
+
+
+def _posed_min_z(mesh_path, result, step=0):
+    mesh = trimesh.load(mesh_path, force="mesh")
+    R = quat_to_matrix(result["orientation_xyzw"][step])
+    return ((mesh.vertices - result["com_mesh"]) @ R.T + result["com_position"][step])[:, 2].min()
+
+
+def _check_trajectory(res, T):
+    assert res["com_position"].shape == (T, 3) and res["orientation_xyzw"].shape == (T, 4)
+    assert res["linear_velocity"].shape == (T, 3) and res["angular_velocity"].shape == (T, 3)
+    np.testing.assert_allclose(res["time"], np.arange(T) / res["rate_hz"])
+    np.testing.assert_allclose(np.linalg.norm(res["orientation_xyzw"], axis=1), 1.0, atol=1e-9)
+    np.testing.assert_allclose(res["linear_velocity"][0], LIN, atol=1e-9)
+    np.testing.assert_allclose(res["angular_velocity"][0], ANG, atol=1e-9)
+    np.testing.assert_allclose(res["com_position"][0, :2], 0.0, atol=1e-12)
+    assert isinstance(res["toppled"], bool)
+
+
+def test_cli_writes_every_key_with_the_right_shapes_and_initial_state(cli_run, meshes, checkpoint):
+    out, proc = cli_run
+    assert f"wrote {out / 'box.json'}" in proc.stdout and "toppled" in proc.stdout
+    raw = json.loads((out / "box.json").read_text())
+    assert set(raw) == KEYS | {"simulated"} and set(raw["simulated"]) == KEYS
+    res = read_prediction(out / "box.json")
+    T = round(SECONDS * res["rate_hz"]) + 1
+    _check_trajectory(res, T)
+    assert res["topple_probability"].shape == (T,) and res["toppled"] == bool((res["topple_probability"] >= 0.5).any())
+    assert res["mesh"] == str(meshes / "box.obj") and res["checkpoint"] == checkpoint
+    np.testing.assert_allclose(res["com_mesh"], [0.3, -0.1, 0.05], atol=1e-9)
+    np.testing.assert_allclose(res["orientation_xyzw"][0], [0, 0, 0, 1])  # the mesh frame as it is
+    assert abs(_posed_min_z(meshes / "box.obj", res)) < 1e-9  # lowest point on the ground
+    assert res["com_position"][0, 2] == pytest.approx(0.1)
+
+
+def test_compare_sim_starts_from_the_same_state(cli_run, meshes):
+    res = read_prediction(cli_run[0] / "box.json")
+    sim = res["simulated"]
+    T = len(res["time"])
+    _check_trajectory(sim, T)
+    assert sim["checkpoint"] == "pybullet" and sim["rate_hz"] == res["rate_hz"]
+    np.testing.assert_allclose(sim["com_position"][0], res["com_position"][0], atol=1e-9)
+    assert abs(_posed_min_z(meshes / "box.obj", sim)) < 1e-6
+    # a box slid at 1.2 m/s on mu = 0.25 stops after about v^2 / (2 mu g) = 0.29 m, upright
+    assert 0.15 < np.linalg.norm(sim["com_position"][-1, :2]) < 0.45 and not sim["toppled"]
+    np.testing.assert_allclose(sim["linear_velocity"][-1], 0.0, atol=0.02)
+    assert set(np.unique(sim["topple_probability"])) <= {0.0, 1.0}
+
+
+def test_render_writes_a_gif_with_one_frame_per_step(cli_run):
+    out, proc = cli_run
+    assert f"wrote {out / 'box.gif'}" in proc.stdout
+    T = len(read_prediction(out / "box.json")["time"])
+    with Image.open(out / "box.gif") as gif:
+        assert gif.format == "GIF" and gif.n_frames == T  # --fps 15 = the model's rate: one frame a step
+        assert gif.size[0] > gif.size[1]  # prediction and simulation side by side
+
+
+def test_python_api_returns_what_the_file_holds_in_every_format(cli_run, meshes, checkpoint, tmp_path):
+    predictor = physdyn.load_predictor(checkpoint)
+    assert isinstance(predictor, Predictor)
+    result = predictor.predict(str(meshes / "box.obj"), LIN, ANG, seconds=SECONDS, compare_sim=True)
+    from_cli = read_prediction(cli_run[0] / "box.json")
+    _assert_same(result, from_cli)
+    for ext in ("npz", "csv"):
+        path = write_prediction(result, tmp_path / f"box.{ext}")
+        _assert_same(result, read_prediction(path))
+        assert not list(tmp_path.glob(".*"))  # no temporary file left behind
+    with np.load(tmp_path / "box.npz") as npz:
+        assert KEYS <= set(npz.files) and {f"simulated_{k}" for k in KEYS} <= set(npz.files)
+    lines = (tmp_path / "box.csv").read_text().splitlines()
+    header = next(line for line in lines if not line.startswith("#")).split(",")
+    assert header[:5] == ["time", "com_position_x", "com_position_y", "com_position_z", "orientation_x"]
+    assert "topple_probability" in header and "simulated_orientation_w" in header
+    assert sum(not line.startswith("#") for line in lines) == len(result["time"]) + 1
+    assert '# toppled: false' in lines or '# toppled: true' in lines
+    with pytest.raises(PredictionError, match="already exists; pass --overwrite"):
+        write_prediction(result, tmp_path / "box.csv")
+    write_prediction(result, tmp_path / "box.csv", overwrite=True)
+
+
+def _assert_same(a, b):
+    assert set(a) == set(b)
+    for key, value in a.items():
+        if key == "simulated":
+            _assert_same(value, b[key])
+        elif isinstance(value, np.ndarray):
+            np.testing.assert_allclose(b[key], value, rtol=0, atol=1e-9, err_msg=key)
+        else:
+            assert b[key] == value, key
+
+
+def test_api_in_memory_mesh_orientation_and_open_mesh_warning(checkpoint):
+    predictor = load_predictor(checkpoint)
+    can = trimesh.creation.cylinder(radius=0.04, height=0.15, sections=24)
+    lying = np.array([np.sin(np.pi / 4), 0, 0, np.cos(np.pi / 4)])  # on its side: 90 degrees about x
+    res = predictor.predict(can, LIN, ANG, seconds=0.5, orientation_xyzw=lying)
+    assert res["mesh"] == "<in-memory>" and len(res["time"]) == round(0.5 * predictor.rate_hz) + 1
+    np.testing.assert_allclose(res["orientation_xyzw"][0], lying, atol=1e-12)
+    assert res["com_position"][0, 2] == pytest.approx(0.04, abs=1e-3)  # resting on its curved side
+    # an open mesh (no top cap) still predicts, with the convex hull's mass properties and a warning
+    cup = trimesh.Trimesh(can.vertices, can.faces[~np.isclose(can.triangles_center[:, 2], 0.075)])
+    with pytest.warns(PredictionWarning, match="convex hull"):
+        open_res = predictor.predict(cup, LIN, ANG, seconds=0.5)
+    assert np.isfinite(open_res["com_position"]).all()
+
+
+def test_bad_values_are_refused_where_they_enter(checkpoint, meshes):
+    predictor = load_predictor(checkpoint)
+    box = str(meshes / "box.obj")
+    for kwargs, match in (({"lin_vel": [1, 0]}, "must be 3 numbers"), ({"ang_vel": [0, np.inf, 0]}, "must be finite"),
+                          ({"seconds": 0}, "seconds must be a positive number"),
+                          ({"orientation_xyzw": [0, 0, 0, 0]}, "zero quaternion")):
+        args = {"lin_vel": LIN, "ang_vel": ANG, **kwargs}
+        with pytest.raises(PhysdynError, match=match):
+            predictor.predict(box, **args)
+    if not BUNDLED_CHECKPOINT.is_file():
+        with pytest.raises(PhysdynError, match="no bundled model.*--checkpoint"):
+            load_predictor()
+
+
+def test_a_model_without_topple_head_writes_null_probabilities(tmp_path):
+    T = 3
+    result = {"rate_hz": 15.0, "time": np.arange(T) / 15.0, "com_position": np.zeros((T, 3)),
+              "orientation_xyzw": np.tile([0.0, 0, 0, 1], (T, 1)), "linear_velocity": np.zeros((T, 3)),
+              "angular_velocity": np.zeros((T, 3)), "topple_probability": None, "toppled": False,
+              "com_mesh": np.zeros(3), "mesh": "m.obj", "checkpoint": "c"}
+    assert json.loads(write_prediction(result, tmp_path / "r.json").read_text())["topple_probability"] is None
+    for ext in ("json", "npz", "csv"):
+        back = read_prediction(write_prediction(result, tmp_path / f"n.{ext}"))
+        assert back["topple_probability"] is None and back["mesh"] == "m.obj", ext
+
+
+def test_batch_writes_good_lines_and_reports_bad_ones_by_number(checkpoint, meshes, tmp_path):
+    requests = tmp_path / "requests.jsonl"
+    good = {"mesh": str(meshes / "can.stl"), "lin_vel": [0.8, 0, 0], "ang_vel": [0, 0, 1], "seconds": 1, "out": "can.npz"}
+    bad = {"mesh": str(meshes / "missing.obj"), "lin_vel": [1, 0, 0], "ang_vel": [0, 0, 0], "seconds": 1, "out": "bad.json"}
+    requests.write_text(json.dumps(good) + "\n" + json.dumps(bad) + "\n")
+    out = tmp_path / "predictions"
+    proc = run_cli("predict", "--batch", str(requests), "--out-dir", str(out), "--checkpoint", checkpoint)
+    assert proc.returncode != 0
+    assert "line 2" in proc.stderr and "missing.obj" in proc.stderr and "line 1" not in proc.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["can.npz"]
+    res = read_prediction(out / "can.npz")
+    assert res["com_position"].shape == (16, 3) and res["mesh"] == good["mesh"]
+
+
+@pytest.fixture(scope="module")
+def bad_files(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("bad")
+    (folder / "garbage.obj").write_text("this is not a mesh\nv 1 2\nf 9 9 9\n")
+    torch.save({"weights": [1, 2, 3]}, folder / "dict.ckpt")
+    (folder / "notes.ckpt").write_text("not a checkpoint")
+    (folder / "taken.json").write_text("{}")
+    return folder
+
+
+@pytest.mark.parametrize("case", ["missing mesh", "nan velocity", "unreadable mesh", "dict checkpoint",
+                                  "text checkpoint", "existing output", "bad extension"])
+def test_bad_input_exits_with_one_line_and_writes_nothing(case, checkpoint, meshes, bad_files, tmp_path):
+    mesh, lin, ckpt, out = str(meshes / "box.obj"), ["1", "0", "0"], checkpoint, tmp_path / "out.json"
+    expected = {
+        "missing mesh": "mesh file not found", "nan velocity": "--lin-vel must be finite",
+        "unreadable mesh": "garbage.obj", "dict checkpoint": "not a physdyn DynamicsModel checkpoint",
+        "text checkpoint": "not a PyTorch checkpoint", "existing output": "already exists; pass --overwrite",
+        "bad extension": "unsupported extension '.txt'",
+    }[case]
+    if case == "missing mesh":
+        mesh = str(tmp_path / "nope.obj")
+    elif case == "nan velocity":
+        lin = ["nan", "0", "0"]
+    elif case == "unreadable mesh":
+        mesh = str(bad_files / "garbage.obj")
+    elif case == "dict checkpoint":
+        ckpt = str(bad_files / "dict.ckpt")
+    elif case == "text checkpoint":
+        ckpt = str(bad_files / "notes.ckpt")
+    elif case == "existing output":
+        out = bad_files / "taken.json"
+    elif case == "bad extension":
+        out = tmp_path / "out.txt"
+    proc = run_cli("predict", mesh, "--lin-vel", *lin, "--ang-vel", "0", "0", "1", "--checkpoint", ckpt, "--out", str(out),
+                   "--render", str(tmp_path / "anim.gif"))
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and expected in lines[0], proc.stderr
+    assert not (tmp_path / "anim.gif").exists()
+    if case == "existing output":
+        assert out.read_text() == "{}"
+    else:
+        assert not out.exists()
+    assert not [p for p in tmp_path.iterdir()]  # no temporary files either
