@@ -254,7 +254,13 @@ def compare(model: Any, store: StoreData | str, baselines: Sequence[Any] = ("sta
     model_result = evaluate(model, store, split, warm_start, categories, **kwargs)
     model_name = model_result["predictor"]
     results[model_name] = model_result
+    skipped: dict[str, str] = {}
     for spec in baselines:
+        if spec == "coulomb_slide" and np.isnan(store.friction).any():
+            # Imported real trials may not know their friction: a NaN baseline would read as "no data".
+            skipped["coulomb_slide"] = ("the store records no friction coefficient (sims/friction is NaN); "
+                                        "import with --friction MU to compare with Coulomb sliding")
+            continue
         r = evaluate(spec, store, split, warm_start, categories, **kwargs)
         name = r["predictor"]
         while name in results:
@@ -268,7 +274,10 @@ def compare(model: Any, store: StoreData | str, baselines: Sequence[Any] = ("sta
                       "final_position_m_median": h["final_position_m_median"],
                       "final_rotation_deg_median": h["final_rotation_deg_median"],
                       "topple_accuracy": (r["topple"] or {}).get("accuracy", float("nan"))})
-    return {"model": model_name, "results": results, "table": table, "verdict": verdict(model_name, results)}
+    text = verdict(model_name, results)
+    if "coulomb_slide" in skipped:
+        text = f"no Coulomb-sliding baseline: {skipped['coulomb_slide']}."
+    return {"model": model_name, "results": results, "table": table, "verdict": text, "skipped_baselines": skipped}
 
 
 def verdict(model_name: str, results: dict[str, dict]) -> str:

@@ -32,3 +32,15 @@ def test_an_existing_report_is_kept_unless_overwrite(tiny_store, tmp_path):
     assert paths["report"].read_text() == "my annotated report"
     write_report(comparison, tmp_path / "out", overwrite=True)
     assert paths["report"].read_text() != "my annotated report"
+
+
+def test_unknown_friction_skips_the_coulomb_baseline_and_says_why(tiny_store):
+    import numpy as np
+
+    from physdyn.data.store import load_store
+
+    store = load_store(tiny_store)
+    store.friction[:] = np.nan  # as an import of real trials without --friction
+    comparison = compare("stay_put", store)
+    assert "coulomb_slide" not in comparison["results"]
+    assert "--friction" in comparison["verdict"] and "friction" in comparison["skipped_baselines"]["coulomb_slide"]
