@@ -1,6 +1,7 @@
 """`physdyn predict` and the predictor API on users' own meshes, with a real (tiny) trained checkpoint."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -241,3 +242,19 @@ def test_bad_input_exits_with_one_line_and_writes_nothing(case, checkpoint, mesh
     else:
         assert not out.exists()
     assert not [p for p in tmp_path.iterdir()]  # no temporary files either
+
+
+def test_the_bundled_model_ships_and_predicts_a_users_mesh(tmp_path):
+    """`physdyn predict` works right after install: the packaged checkpoint loads and rolls out."""
+    import physdyn
+    from physdyn.eval.predict import BUNDLED_CHECKPOINT
+
+    assert BUNDLED_CHECKPOINT.is_file() and BUNDLED_CHECKPOINT.stat().st_size < 10e6  # "a few MB"
+    predictor = physdyn.load_predictor()
+    mesh = Path(__file__).resolve().parents[2] / "examples" / "meshes" / "bracket_mm.obj"
+    result = predictor.predict(str(mesh), [1.0, 0.0, 0.0], [0.0, 0.0, 2.0], seconds=2.0, scale=0.001)
+    assert result["checkpoint"] == "bundled" and len(result["time"]) == 2 * int(predictor.rate_hz) + 1
+    np.testing.assert_allclose(result["linear_velocity"][0], [1.0, 0.0, 0.0])
+    assert np.isfinite(result["com_position"]).all()
+    moved = np.linalg.norm(result["com_position"][-1, :2] - result["com_position"][0, :2])
+    assert 0.01 < moved < 1.0  # a 1 m/s push on a plane with mu = 0.25 slides about 20 cm

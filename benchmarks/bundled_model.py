@@ -1,0 +1,40 @@
+"""The bundled model against the baselines on a store's test split (default: the quickstart data).
+
+    python benchmarks/bundled_model.py [STORE] [--checkpoint CKPT] [--split test]
+
+Prints the median final-position error of non-toppling sequences for the model, Coulomb sliding and
+staying put, and the model-to-sliding ratio (below 1: the model is better).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from physdyn.eval.evaluate import compare
+from physdyn.eval.predict import load_predictor
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("store", nargs="?", default="data/quickstart.zarr")
+    parser.add_argument("--checkpoint", default=None, help="default: the bundled model")
+    parser.add_argument("--split", default="test")
+    args = parser.parse_args()
+    model = load_predictor(args.checkpoint).model
+    t0 = time.perf_counter()
+    result = compare(model, args.store, split=args.split)
+    seconds = time.perf_counter() - t0
+    rows = {row["predictor"]: row for row in result["table"]}
+    model_name = result["model"]
+    print(f"store {args.store}, {args.split} split, {rows[model_name]['count']} non-toppling sequences ({seconds:.0f} s)")
+    for name, row in rows.items():
+        print(f"  {name:<16} final position median {100 * row['final_position_m_median']:6.2f} cm   "
+              f"position {1000 * row['position']:6.2f} mm/step   final rotation median {row['final_rotation_deg_median']:6.1f} deg")
+    ratio = rows[model_name]["final_position_m_median"] / rows["coulomb_slide"]["final_position_m_median"]
+    print(f"model / Coulomb sliding, median final position error: {ratio:.2f} ({'better' if ratio < 1 else 'worse'})")
+    print(result["verdict"])
+
+
+if __name__ == "__main__":
+    main()
