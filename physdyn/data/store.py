@@ -154,16 +154,30 @@ class StoreWriter:
             )
         return cls(group, str(url))
 
-    def done_blocks(self) -> set[int]:
-        if PARTS not in self.group:
-            return set()
-        parts = self.group[PARTS]
-        return {int(name) for name, g in parts.groups() if g.attrs.get("done")}
+    def done_blocks(self, num_blocks: int) -> set[int]:
+        """Blocks whose part is fully written. A part a killed run left half-written (even with truncated
+        metadata, which zarr's local writes do not prevent) counts as not done."""
+        done = set()
+        for block in range(num_blocks):
+            try:
+                if self.group[f"{PARTS}/{block:06d}"].attrs.get("done"):
+                    done.add(block)
+            except Exception:
+                continue
+        return done
+
+    def _delete(self, name: str) -> None:
+        try:
+            if name in self.group:
+                del self.group[name]
+        except Exception:  # unreadable metadata: remove the node's keys directly
+            from zarr.core.sync import sync
+
+            sync(self.group.store.delete_dir(name))
 
     def write_block(self, block: int, arrays: dict[str, np.ndarray], attrs: dict | None = None) -> None:
         name = f"{PARTS}/{block:06d}"
-        if name in self.group:
-            del self.group[name]
+        self._delete(name)
         part = self.group.require_group(name)
         for key, value in arrays.items():
             _write_array(part, key, value)
@@ -185,8 +199,7 @@ class StoreWriter:
         # A missing chunk reads back as fill values without any error: checksums make corruption visible.
         checksums = {key: checksum(value) for key, value in arrays.items()}
         self.group.attrs.update({**_jsonable(attrs), "checksums": checksums, "arrays_written": True})
-        if PARTS in self.group:
-            del self.group[PARTS]
+        self._delete(PARTS)
         self.group.attrs["complete"] = True
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")

@@ -12,6 +12,7 @@ Both predict that nothing topples (probability 0 at every step). Neither uses a 
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from pathlib import Path
 from typing import Any
 
@@ -89,14 +90,15 @@ def coulomb_slide(com_position0: np.ndarray, orientation0_xyzw: np.ndarray, lin_
     return _result(p, np.repeat(q0[:, None], T, axis=1), v, w)
 
 
-class Baseline:
+class Baseline(ABC):
     """A named baseline for ``evaluate``: ``rollout(p0, q0, v0, w0, steps, friction, rate_hz)``."""
 
     name = "baseline"
     predicts_topple = True  # its zero probabilities are a prediction: "never topples"
 
+    @abstractmethod
     def rollout(self, com_position0, orientation0_xyzw, lin_vel0, ang_vel0, steps: int, friction, rate_hz: float) -> RolloutResult:
-        raise NotImplementedError
+        """(B, 3) positions and velocities, (B, 4) orientations, (B,) friction -> steps + 1 states each."""
 
 
 class StayPut(Baseline):

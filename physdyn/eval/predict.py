@@ -185,50 +185,23 @@ def simulate_from_state(spec: Any, orientation_xyzw: np.ndarray, lin_vel: np.nda
     ``linear_velocity`` (T, 3), ``angular_velocity`` (T, 3), ``topple_label`` (T,) bool (the 45° rule).
     """
     from physdyn.config import PhysicsConfig
-    from physdyn.geometry.rotations import canonical_quat, matrix_to_quat, quat_conjugate, quat_multiply
     from physdyn.sim.bullet import pb
-    from physdyn.sim.trajectory import resting_com_position, steps_per_frame, topple_labels
+    from physdyn.sim.trajectory import place_at_rest, record, topple_labels
     from physdyn.sim.world import PhysicsWorld
 
     phys = physics or PhysicsConfig()
-    every = steps_per_frame(phys.time_step, rate_hz)
-    q_mesh0 = np.asarray(orientation_xyzw, dtype=np.float64)
-    q_principal = matrix_to_quat(spec.principal_axes)
-    rest_needed = int(np.ceil(phys.rest_duration / phys.time_step - 1e-9))
-    positions, quats, lin, ang = [], [], [], []
     with PhysicsWorld(phys) as world:
-        cid = world.client
         body = world.add_body(spec)
-        # PyBullet's base frame is the principal frame: R_base = R_mesh @ A (as physdyn.sim.trajectory).
-        com0 = resting_com_position(spec, q_mesh0)
-        pb.resetBasePositionAndOrientation(body, com0.tolist(), quat_multiply(q_mesh0, q_principal).tolist(), physicsClientId=cid)
-        pb.resetBaseVelocity(body, list(map(float, lin_vel)), list(map(float, ang_vel)), physicsClientId=cid)
-        rest_steps, step = 0, 0
-        while True:
-            if step % every == 0:
-                pos, orn = pb.getBasePositionAndOrientation(body, physicsClientId=cid)
-                v, w = pb.getBaseVelocity(body, physicsClientId=cid)
-                positions.append(pos)
-                quats.append(orn)
-                lin.append(v)
-                ang.append(w)
-                if len(positions) >= num_steps or rest_steps >= rest_needed:
-                    break
-            pb.stepSimulation(physicsClientId=cid)
-            step += 1
-            v, w = pb.getBaseVelocity(body, physicsClientId=cid)
-            at_rest = np.dot(v, v) < phys.rest_linear_speed**2 and np.dot(w, w) < phys.rest_angular_speed**2
-            rest_steps = rest_steps + 1 if at_rest else 0
-    # Back to the mesh frame: R_mesh = R_base @ A^T.
-    orientation = canonical_quat(quat_multiply(np.asarray(quats, dtype=np.float64), quat_conjugate(q_principal)))
-    orientation /= np.linalg.norm(orientation, axis=1, keepdims=True)
+        place_at_rest(world, body, spec, orientation_xyzw)
+        pb.resetBaseVelocity(body, list(map(float, lin_vel)), list(map(float, ang_vel)), physicsClientId=world.client)
+        traj = record(world, body, spec, rate_hz, max_frames=num_steps)
     out = {
-        "com_position": np.asarray(positions, dtype=np.float64),
-        "orientation_xyzw": orientation,
-        "linear_velocity": np.asarray(lin, dtype=np.float64),
-        "angular_velocity": np.asarray(ang, dtype=np.float64),
+        "com_position": traj.com_position,
+        "orientation_xyzw": traj.orientation_xyzw,
+        "linear_velocity": traj.linear_velocity,
+        "angular_velocity": traj.angular_velocity,
     }
-    recorded = len(positions)
+    recorded = len(traj)
     if recorded < num_steps:
         pad = num_steps - recorded
         for key in ("com_position", "orientation_xyzw"):

@@ -324,7 +324,7 @@ def generate_dataset(cfg: DataConfig, out: str, workers: int = 1, executor: str 
             "num_blocks": len(blocks),
         }
         writer = StoreWriter.create(out, attrs, overwrite=overwrite)
-    done = writer.done_blocks()
+    done = writer.done_blocks(len(blocks))
     work = [(b, tasks) for b, tasks in enumerate(blocks) if b not in done]
     sims_of = lambda tasks: sum(cfg.families[t.family].sims_per_shape for t in tasks)  # noqa: E731
     total = sum(sims_of(t) for t in blocks)
@@ -337,7 +337,7 @@ def generate_dataset(cfg: DataConfig, out: str, workers: int = 1, executor: str 
     except KeyboardInterrupt:
         bar.close()
         raise KeyboardInterrupt(
-            f"{len(writer.done_blocks())} of {len(blocks)} blocks are saved in {out}; "
+            f"{len(writer.done_blocks(len(blocks)))} of {len(blocks)} blocks are saved in {out}; "
             f"rerun the same command with --resume to finish"
         ) from None
     bar.close()

@@ -70,29 +70,27 @@ def steps_per_frame(time_step: float, rate_hz: float) -> int:
     return int(round(n))
 
 
-def simulate(world: PhysicsWorld, body: int, spec: RigidBodySpec, init: InitialCondition, rate_hz: float) -> Trajectory:
-    """Place the body at rest, push it for one physics step, record until at rest or the time cap."""
+def place_at_rest(world: PhysicsWorld, body: int, spec: RigidBodySpec, orientation_xyzw: np.ndarray) -> np.ndarray:
+    """Put the body at rest on the ground in this mesh-frame orientation; returns the com position."""
+    q_mesh0 = np.asarray(orientation_xyzw, dtype=np.float64)
+    # PyBullet's base frame is the principal frame: R_base = R_mesh @ A.
+    q_base = quat_multiply(q_mesh0, matrix_to_quat(spec.principal_axes))
+    com0 = resting_com_position(spec, q_mesh0)
+    pb.resetBasePositionAndOrientation(body, com0.tolist(), q_base.tolist(), physicsClientId=world.client)
+    pb.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=world.client)
+    return com0
+
+
+def record(world: PhysicsWorld, body: int, spec: RigidBodySpec, rate_hz: float, max_frames: int | None = None) -> Trajectory:
+    """Step the world from the body's current state, recording at ``rate_hz`` (the current state is step
+    0) until it has rested for ``physics.rest_duration`` or ``max_frames`` (default: the time cap)."""
     phys = world.physics
     cid = world.client
-    q_mesh0 = np.asarray(init.orientation_xyzw, dtype=np.float64)
-    q_principal = matrix_to_quat(spec.principal_axes)
-    # PyBullet's base frame is the principal frame: R_base = R_mesh @ A.
-    q_base = quat_multiply(q_mesh0, q_principal)
-    com0 = resting_com_position(spec, q_mesh0)
-    pb.resetBasePositionAndOrientation(body, com0.tolist(), q_base.tolist(), physicsClientId=cid)
-    pb.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=cid)
-    world.set_object_friction(body, init.friction / phys.lateral_friction_ground)
-
-    # The push: a force over exactly one physics step, so the ground's reaction acts during it.
-    force = np.asarray(init.impulse, dtype=np.float64) / phys.time_step
-    pb.applyExternalForce(body, -1, force.tolist(), list(map(float, init.impulse_point)), pb.WORLD_FRAME, physicsClientId=cid)
-    pb.stepSimulation(physicsClientId=cid)
-
     every = steps_per_frame(phys.time_step, rate_hz)
-    max_frames = int(np.floor(phys.max_duration * rate_hz + 1e-9)) + 1
+    if max_frames is None:
+        max_frames = int(np.floor(phys.max_duration * rate_hz + 1e-9)) + 1
     rest_steps_needed = int(np.ceil(phys.rest_duration / phys.time_step - 1e-9))
     v_rest, w_rest = phys.rest_linear_speed, phys.rest_angular_speed
-    q_principal_inv = q_principal * np.array([-1, -1, -1, 1])
 
     positions, quats, lin, ang = [], [], [], []
     rest_steps = 0
@@ -114,6 +112,7 @@ def simulate(world: PhysicsWorld, body: int, spec: RigidBodySpec, init: InitialC
         rest_steps = rest_steps + 1 if at_rest else 0
 
     # Back from the principal frame to the mesh frame: R_mesh = R_base @ A^T.
+    q_principal_inv = matrix_to_quat(spec.principal_axes) * np.array([-1, -1, -1, 1])
     orientation = quat_multiply(np.asarray(quats), q_principal_inv)
     orientation /= np.linalg.norm(orientation, axis=1, keepdims=True)
     orientation = np.where(orientation[:, 3:4] < 0, -orientation, orientation)
@@ -126,3 +125,16 @@ def simulate(world: PhysicsWorld, body: int, spec: RigidBodySpec, init: InitialC
         topple_label=labels,
         topple_step=topple_step,
     )
+
+
+def simulate(world: PhysicsWorld, body: int, spec: RigidBodySpec, init: InitialCondition, rate_hz: float) -> Trajectory:
+    """Place the body at rest, push it for one physics step, record until at rest or the time cap."""
+    phys = world.physics
+    place_at_rest(world, body, spec, init.orientation_xyzw)
+    world.set_object_friction(body, init.friction / phys.lateral_friction_ground)
+    # The push: a force over exactly one physics step, so the ground's reaction acts during it.
+    force = np.asarray(init.impulse, dtype=np.float64) / phys.time_step
+    pb.applyExternalForce(body, -1, force.tolist(), list(map(float, init.impulse_point)), pb.WORLD_FRAME,
+                          physicsClientId=world.client)
+    pb.stepSimulation(physicsClientId=world.client)
+    return record(world, body, spec, rate_hz)

@@ -103,6 +103,30 @@ def test_killed_run_is_incomplete_then_resumes_to_identical_arrays(tmp_path):
     assert_same_arrays(load_store(out), load_store(ref))
 
 
+def test_resume_survives_a_part_with_truncated_metadata(tmp_path):
+    """SIGKILL can land while zarr writes a part's zarr.json; resume must redo that part, not crash."""
+    import zarr
+
+    out = tmp_path / "trunc.zarr"
+    cfg = small_config("shapes_per_block=2")
+    generate_dataset(cfg, str(out), progress=False)
+    reference = load_store(out)
+    # Rebuild the interrupted state: incomplete, one part fully written, one with truncated metadata.
+    from physdyn.data.store import StoreWriter
+    from physdyn.sim.generate import config_hash, plan, run_block
+
+    blocks, _ = plan(cfg)
+    writer = StoreWriter.create(str(out), {"config_hash": config_hash(cfg), "rate_hz": cfg.rate_hz}, overwrite=True)
+    for b in (0, 1):
+        writer.write_block(*run_block(cfg, b, blocks[b]))
+    meta = out / PARTS / "000001" / "zarr.json"
+    meta.write_text(meta.read_text()[:25])
+    assert writer.done_blocks(len(blocks)) == {0}
+    generate_dataset(cfg, str(out), resume=True, progress=False)
+    assert_same_arrays(load_store(out), reference)
+    assert zarr.open_group(str(out), mode="r").attrs["complete"] is True
+
+
 def test_existing_store_is_never_overwritten_without_flag(tmp_path, tiny_store):
     out = tmp_path / "mine.zarr"
     cfg = small_config()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,7 +23,7 @@ class ShapeInstance:
     source: str
 
 
-class ShapeFamily:
+class ShapeFamily(ABC):
     """A source of shapes. Subclasses register with ``@SHAPE_FAMILIES.register("name")`` and may define a
     dataclass ``Config`` with their parameters (size ranges, ...), passed to ``__init__``.
 
@@ -41,9 +42,9 @@ class ShapeFamily:
         """How many instances this family yields for a request (a mesh folder yields its file count)."""
         return requested
 
+    @abstractmethod
     def make(self, index: int, rng: np.random.Generator) -> ShapeInstance:
         """Instance ``index``, drawn with ``rng`` (seeded per instance by the caller).
 
         Raises ``physdyn.errors.ShapeError`` for an unusable shape; the generator skips and reports it.
         """
-        raise NotImplementedError

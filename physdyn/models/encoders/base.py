@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 import torch
 from torch import nn
 
 
-class ShapeEncoder(nn.Module):
+class ShapeEncoder(nn.Module, ABC):
     """Reads a point cloud once per sequence and returns a shape feature.
 
     Subclasses register with ``@ENCODERS.register("name")``, define a dataclass ``Config`` (their typed
@@ -15,7 +17,7 @@ class ShapeEncoder(nn.Module):
 
     out_dim: int
 
+    @abstractmethod
     def forward(self, points: torch.Tensor) -> torch.Tensor:
         """points: (B, N, 3) float32, world-oriented body frame (centred at the centre of mass)
         -> (B, out_dim) shape feature."""
-        raise NotImplementedError

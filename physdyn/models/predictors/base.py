@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from typing import Any
 
 import torch
 from torch import nn
 
 
-class StatePredictor(nn.Module):
+class StatePredictor(nn.Module, ABC):
     """Maps per-step inputs [v, w, shape feature] to per-step features, carrying a recurrent state.
 
     Subclasses register with ``@PREDICTORS.register("name")``, define a dataclass ``Config`` and take
@@ -19,7 +20,7 @@ class StatePredictor(nn.Module):
 
     out_dim: int
 
+    @abstractmethod
     def forward(self, inputs: torch.Tensor, state: Any = None) -> tuple[torch.Tensor, Any]:
         """inputs: (B, T, input_dim); state: from the previous call, or None to start from zero
         -> (features (B, T, out_dim), new state)."""
-        raise NotImplementedError
