@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from physdyn.data.store import StoreData
-from physdyn.geometry.rotations import world_delta_rotvec
+from physdyn.geometry.rotations import quat_to_matrix, world_delta_rotvec
 
 WINDOW_KEYS = (
     "points", "linear_velocity", "angular_velocity", "delta_linear_velocity", "delta_angular_velocity",
@@ -57,24 +57,9 @@ def frame_targets(store: StoreData) -> FrameTargets:
     )
 
 
-def quat_to_matrix_fast(q_xyzw: np.ndarray) -> np.ndarray:
-    """(..., 4) unit quaternions (x, y, z, w) -> (..., 3, 3) rotation matrices (no SciPy object overhead)."""
-    q = np.asarray(q_xyzw, dtype=np.float64)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    x, y, z, w = np.moveaxis(q, -1, 0)
-    return np.stack(
-        [
-            1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
-            2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
-            2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y),
-        ],
-        axis=-1,
-    ).reshape(q.shape[:-1] + (3, 3))
-
-
 def world_oriented_points(points_body: np.ndarray, orientation_xyzw: np.ndarray) -> np.ndarray:
     """points_body: (..., N, 3) body frame; orientation_xyzw: (..., 4) of the mesh frame -> (..., N, 3) R @ p."""
-    R = quat_to_matrix_fast(orientation_xyzw)
+    R = quat_to_matrix(orientation_xyzw)
     return np.einsum("...ij,...nj->...ni", R, points_body)
 
 
