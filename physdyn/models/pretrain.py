@@ -208,7 +208,9 @@ def pretrain(config: PretrainConfig, overwrite: bool = False) -> PretrainResult:
     from lightning.pytorch.callbacks import ModelCheckpoint
 
     from physdyn.config import to_dict
-    from physdyn.models.training import FINISHED, build_trainer, prepare_run_directory, run_directory, save_config_yaml
+    from physdyn.models.training import (
+        FINISHED, build_trainer, ignore_lightning_noise, prepare_run_directory, run_directory, save_config_yaml,
+    )
 
     cfg = config
     out_dir = run_directory(cfg)
@@ -231,6 +233,7 @@ def pretrain(config: PretrainConfig, overwrite: bool = False) -> PretrainResult:
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*smaller than the logging interval.*")
         warnings.filterwarnings("ignore", message=".*does not have many workers.*")
+        ignore_lightning_noise()
         trainer.fit(model, train_loader, val_loader)
     if checkpoint.best_model_path:
         best = torch.load(checkpoint.best_model_path, map_location="cpu", weights_only=False)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import inspect
 import json
+import logging
 import os
 import shutil
 import warnings
@@ -146,8 +147,33 @@ def _progress_bar():
     return ProgressBar()
 
 
+# Lightning prints these on every run; over a 44-run `physdyn reproduce` log they bury the progress lines.
+# Both are about Lightning itself (its cloud logger, its own use of a torch API), not about the user's run.
+LIGHTNING_NOISE = ("litlogger", "`isinstance(treespec, LeafSpec)` is deprecated")
+
+
+class _DropLightningNoise(logging.Filter):
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not any(text in record.getMessage() for text in LIGHTNING_NOISE)
+
+
+def ignore_lightning_noise() -> None:
+    """Inside ``warnings.catch_warnings()``: drop Lightning's per-run tip and torch deprecation warning."""
+    warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\).*", category=FutureWarning)
+
+
+def _drop_lightning_tips() -> None:
+    # Lightning logs rank-zero messages through whichever of these loggers was imported last.
+    for name in ("lightning.pytorch.utilities.rank_zero", "lightning.fabric.utilities.rank_zero"):
+        target = logging.getLogger(name)
+        if not any(isinstance(f, _DropLightningNoise) for f in target.filters):
+            target.addFilter(_DropLightningNoise())
+
+
 def build_trainer(cfg_trainer: dict[str, Any], out_dir: Path, callbacks: list, progress_bar: bool, loggers: bool = True):
     from lightning import Trainer
+
+    _drop_lightning_tips()
     from lightning.pytorch.loggers import CSVLogger, TensorBoardLogger
 
     validate_trainer_args(cfg_trainer)
@@ -231,13 +257,16 @@ def fit(config: ExperimentConfig, resume: bool = False, overwrite: bool = False,
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*exists and is not empty.*")
         warnings.filterwarnings("ignore", message=".*smaller than the logging interval.*")
+        ignore_lightning_noise()
         trainer.fit(model, datamodule=datamodule, ckpt_path=str(ckpt_path) if ckpt_path else None)
     scalar = lambda d: {k: float(v) for k, v in d.items() if torch.is_tensor(v) and v.numel() == 1}  # noqa: E731
     metrics = scalar(trainer.callback_metrics)
     if not checkpoint.best_model_path and not trainer.interrupted:
         # Training stopped before any validation (max_steps inside the first epoch): validate once so the
         # run still has a best.ckpt with a val/loss.
-        trainer.validate(model, datamodule=datamodule, verbose=False)
+        with warnings.catch_warnings():
+            ignore_lightning_noise()
+            trainer.validate(model, datamodule=datamodule, verbose=False)
         trainer.save_checkpoint(out_dir / "best.ckpt")
         metrics.update(scalar(trainer.callback_metrics))
         if "val/loss" in trainer.callback_metrics:

@@ -144,6 +144,17 @@ def test_resume_continues_and_finished_runs_are_protected(quickstart_config):
     assert json.loads((again.out_dir / "finished.json").read_text())["global_step"] == 1
 
 
+def test_cli_fit_output_is_free_of_lightning_noise(tiny_store, tmp_path):
+    # Lightning's cloud-logger tip and a torch deprecation warning it triggers used to print on every run.
+    from physdyn.models.training import LIGHTNING_NOISE
+
+    proc = run_cli("fit", "--config", str(QUICKSTART), *shrunk_overrides(tiny_store, tmp_path / "r"))
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "r" / "finished.json").is_file()
+    for text in LIGHTNING_NOISE:
+        assert text not in proc.stdout + proc.stderr, text
+
+
 def test_bad_config_is_a_one_line_error_naming_the_key(tiny_store, tmp_path):
     base = ["fit", "--config", str(QUICKSTART), f"data.store={tiny_store}", f"out_dir={tmp_path / 'r'}"]
     cases = [
