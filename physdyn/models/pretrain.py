@@ -233,6 +233,7 @@ def pretrain(config: PretrainConfig, overwrite: bool = False) -> PretrainResult:
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*smaller than the logging interval.*")
         warnings.filterwarnings("ignore", message=".*does not have many workers.*")
+        warnings.filterwarnings("ignore", message=".*exists and is not empty.*")  # our config.yaml is there
         ignore_lightning_noise()
         trainer.fit(model, train_loader, val_loader)
     if checkpoint.best_model_path:

@@ -68,6 +68,15 @@ def test_the_tiny_suite_runs_end_to_end_and_the_page_has_every_table(tiny_suite)
     assert json.loads((out / "train/combined/run.json").read_text())["wall_s"] > 0
 
 
+def test_error_curves_stop_where_too_few_sequences_remain():
+    curve = lambda count: {"position_m": [0.0] * len(count), "count": count}  # noqa: E731
+    assert R.CURVE_MIN_SEQUENCES == 10
+    assert R.plotted_steps(curve([40, 40, 25, 10, 9, 3, 1])) == 4  # the steps with at least 10 sequences
+    assert R.plotted_steps(curve([12, 12, 12])) == 3
+    assert R.plotted_steps(curve([3, 3, 2, 1])) == 2  # a small set: plotted while all of it moves
+    assert R.plotted_steps(curve([])) == 0
+
+
 def test_a_second_invocation_skips_every_finished_run(tiny_suite):
     root, _, _, first_seconds = tiny_suite
     log: list[str] = []
