@@ -85,6 +85,10 @@ def test_a_second_invocation_skips_every_finished_run(tiny_suite):
     assert all(o.status == "skipped" for o in outcomes)
     assert sum("skip " in line for line in log) == len(R.build_suite())
     assert time.time() - started < max(5.0, first_seconds / 3)
+    # the page credits the invocation that made the runs, not the one that only skipped them
+    page = R.write_results(root / "out", root / "again.md").read_text()
+    assert "`pytest tiny suite` on 20" in page and f"({len(R.build_suite())} runs)" in page
+    assert "and 1 later invocation(s) that found every selected run finished" in page
 
 
 def test_an_interrupted_run_is_resumed_and_only_it_is_redone(tiny_suite):
