@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from physdyn.errors import PhysdynError, StoreError
-from physdyn.geometry.rotations import canonical_quat, quat_to_matrix, world_delta_rotvec
+from physdyn.geometry.rotations import canonical_quat, continuous_quat, quat_to_matrix, world_delta_rotvec
 from physdyn.sim.mocap import CSV_HEADER, TrackedShape
 from physdyn.sim.trajectory import topple_labels
 
@@ -188,8 +188,7 @@ def check_quaternions(q_xyzw: np.ndarray, settings: ImportSettings) -> np.ndarra
         if not settings.fix_sign_flips:
             raise TrialError(f"quaternion sign flips (q -> -q) at line {int(flips[0]) + 3} ({len(flips)} flip(s)); "
                              f"export continuous quaternions, or pass --fix-sign-flips to re-align them")
-        sign = np.cumprod(np.where(dots < 0, -1.0, 1.0))
-        q[1:] *= sign[:, None]
+        q = continuous_quat(q)
     return q
 
 

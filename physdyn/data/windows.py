@@ -20,6 +20,9 @@ import numpy as np
 from physdyn.data.store import StoreData
 from physdyn.geometry.rotations import quat_to_matrix, world_delta_rotvec
 
+# The per-step changes a model predicts, in the order of its 12 outputs [dv, dw, dp, dtheta].
+DELTA_KEYS = ("delta_linear_velocity", "delta_angular_velocity", "delta_position", "delta_rotation")
+
 WINDOW_KEYS = (
     "points", "linear_velocity", "angular_velocity", "delta_linear_velocity", "delta_angular_velocity",
     "delta_position", "delta_rotation", "topple_label", "valid", "com_position0", "orientation0_xyzw",
@@ -42,18 +45,23 @@ class FrameTargets:
     next_topple_label: np.ndarray
 
 
-def frame_targets(store: StoreData) -> FrameTargets:
+def frame_targets(store: StoreData, frames: np.ndarray | None = None) -> FrameTargets:
+    """The targets of every frame, or of ``frames`` only (any shape of frame indices; the arrays then have
+    that shape in front): evaluation needs the test frames, not the whole store."""
     F = len(store.com_position)
-    nxt = np.arange(1, F + 1)
-    last = store.start[1:] - 1  # each simulation's last frame has no next frame: it maps to itself
-    nxt[last] = last
+    cur = np.arange(F) if frames is None else np.asarray(frames, dtype=np.int64).reshape(-1)
+    is_last = np.zeros(F, dtype=bool)
+    is_last[store.start[1:] - 1] = True  # each simulation's last frame has no next frame: it maps to itself
+    nxt = np.where(is_last[cur], cur, cur + 1)
     q = store.orientation_xyzw
+    lead = cur.shape if frames is None else np.shape(frames)
+    shaped = lambda a: a.reshape(lead + a.shape[1:])  # noqa: E731
     return FrameTargets(
-        delta_linear_velocity=store.linear_velocity[nxt] - store.linear_velocity,
-        delta_angular_velocity=store.angular_velocity[nxt] - store.angular_velocity,
-        delta_position=store.com_position[nxt] - store.com_position,
-        delta_rotation=np.where((nxt == np.arange(F))[:, None], 0.0, world_delta_rotvec(q, q[nxt])),
-        next_topple_label=store.topple_label[nxt].astype(bool),
+        delta_linear_velocity=shaped(store.linear_velocity[nxt] - store.linear_velocity[cur]),
+        delta_angular_velocity=shaped(store.angular_velocity[nxt] - store.angular_velocity[cur]),
+        delta_position=shaped(store.com_position[nxt] - store.com_position[cur]),
+        delta_rotation=shaped(np.where((nxt == cur)[:, None], 0.0, world_delta_rotvec(q[cur], q[nxt]))),
+        next_topple_label=shaped(store.topple_label[nxt].astype(bool)),
     )
 
 

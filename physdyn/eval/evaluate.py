@@ -59,7 +59,7 @@ def gather_truth(store: StoreData, sims: np.ndarray, num_steps: int | None = Non
     T = int(length.max()) if num_steps is None else int(num_steps) + 1
     t = np.arange(T)[None, :]
     frames = store.start[sims][:, None] + np.minimum(t, length[:, None] - 1)
-    targets = frame_targets(store)
+    targets = frame_targets(store, frames[:, :-1])  # only the frames evaluated
     out = {
         "com_position": store.com_position[frames],
         "orientation_xyzw": store.orientation_xyzw[frames],
@@ -73,7 +73,7 @@ def gather_truth(store: StoreData, sims: np.ndarray, num_steps: int | None = Non
         "friction": store.friction[sims].astype(np.float64),
     }
     for key in DELTA_KEYS:
-        out[key] = getattr(targets, key)[frames[:, :-1]]
+        out[key] = getattr(targets, key)
     return out
 
 
@@ -166,17 +166,23 @@ def _summary(per_seq: dict[str, dict[str, np.ndarray]], keep: np.ndarray) -> dic
     }
 
 
-def _curves(pred: RolloutResult, truth: dict[str, np.ndarray], keep: np.ndarray) -> dict[str, list[float]]:
-    """Mean error at each step index over the kept sequences still running there (for plots)."""
+def _curves(pred: RolloutResult, truth: dict[str, np.ndarray], groups: dict[str, np.ndarray]) -> dict[str, dict[str, list[float]]]:
+    """Per group: mean error at each step index over its sequences still running there (for plots). The
+    errors are computed once for every sequence, then sliced per group."""
+    step_err = M.step_errors(pred.deltas(), truth)
+    pos = M.position_error_curve(pred.com_position, truth["com_position"])
+    rot = M.rotation_angle_deg(pred.orientation_xyzw, truth["orientation_xyzw"])
     out = {}
-    for key, err in M.step_errors(pred.deltas(), truth).items():
-        out[key] = M.error_curve(err[keep], truth["valid"][keep])[0].tolist()
-    sv = truth["state_valid"][keep]
-    pos = M.position_error_curve(pred.com_position[keep], truth["com_position"][keep])
-    rot = M.rotation_angle_deg(pred.orientation_xyzw[keep], truth["orientation_xyzw"][keep])
-    out["position_m"] = M.error_curve(pos, sv)[0].tolist()
-    out["rotation_deg"] = M.error_curve(rot, sv)[0].tolist()
-    out["count"] = M.error_curve(pos, sv)[1].tolist()
+    for group, keep in groups.items():
+        if not keep.any():
+            continue
+        curves = {key: M.error_curve(err[keep], truth["valid"][keep])[0].tolist() for key, err in step_err.items()}
+        sv = truth["state_valid"][keep]
+        position, count = M.error_curve(pos[keep], sv)
+        curves["position_m"] = position.tolist()
+        curves["rotation_deg"] = M.error_curve(rot[keep], sv)[0].tolist()
+        curves["count"] = count.tolist()
+        out[group] = curves
     return out
 
 
@@ -234,7 +240,7 @@ def evaluate(model_or_baseline: Any, store: StoreData | str, split: str = "test"
         "rollout": rollout_groups,
         "per_category": per_category,
         "topple": topple,
-        "curves": {g: _curves(pred, truth, keep) for g, keep in groups.items() if keep.any()},
+        "curves": _curves(pred, truth, groups),
         "per_sequence": {
             "sim": sims.tolist(), "toppled": truth["toppled"].tolist(),
             "category": [store.category_names[c] if c < len(store.category_names) else str(c) for c in truth["category"]],

@@ -252,6 +252,7 @@ class Predictor:
         A note about the mesh (e.g. an open surface) is issued as a ``PredictionWarning``.
         """
         from physdyn.eval.rollout import rollout
+        from physdyn.eval.metrics import TOPPLE_THRESHOLD
         from physdyn.sim.trajectory import topple_labels
 
         v0 = as_vector(lin_vel, "linear velocity (lin_vel)")
@@ -266,7 +267,7 @@ class Predictor:
         out = rollout(self.model, points[None], q0[None], p0[None], v0[None], w0[None], T - 1).sequence(0)
         probability = out["topple_probability"]
         if probability is not None:
-            toppled = bool(np.any(probability >= 0.5))
+            toppled = bool(np.any(probability >= TOPPLE_THRESHOLD))
         else:  # no topple head: the 45° rule on the predicted orientations
             toppled = bool(topple_labels(out["orientation_xyzw"])[1] >= 0)
         result = self._result(out, probability, toppled, body, self.name)

@@ -34,7 +34,8 @@ def _clean(obj: Any) -> Any:
     return obj
 
 
-def _fmt(x: Any, digits: int = 4) -> str:
+def fmt_number(x: Any, digits: int = 4) -> str:
+    """A number to 4 significant digits for a table; None, NaN and inf read 'n/a'."""
     return "n/a" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{x:.{digits}g}"
 
 
@@ -49,9 +50,9 @@ def markdown(comparison: dict) -> str:
                                                                              "final p (m)", "final rot (deg)", "topple acc."]
     lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for row in comparison["table"]:
-        cells = [row["predictor"], str(row["count"])] + [_fmt(row[k]) for k in ERROR_KEYS]
-        cells += [_fmt(100 * row[f"relative_{k}"], 3) + " %" for k in ("linear_velocity", "angular_velocity", "position", "angle")]
-        cells += [_fmt(row["final_position_m_median"]), _fmt(row["final_rotation_deg_median"]), _fmt(row["topple_accuracy"], 3)]
+        cells = [row["predictor"], str(row["count"])] + [fmt_number(row[k]) for k in ERROR_KEYS]
+        cells += [fmt_number(100 * row[f"relative_{k}"], 3) + " %" for k in ("linear_velocity", "angular_velocity", "position", "angle")]
+        cells += [fmt_number(row["final_position_m_median"]), fmt_number(row["final_rotation_deg_median"]), fmt_number(row["topple_accuracy"], 3)]
         lines.append("| " + " | ".join(cells) + " |")
     lines += ["", comparison["verdict"], ""]
     return "\n".join(lines)

@@ -36,6 +36,8 @@ import numpy as np
 
 from physdyn.config import load_config, to_dict
 from physdyn.errors import ConfigError, PhysdynError
+from physdyn.eval.report import UNITS
+from physdyn.eval.report import fmt_number as _num
 
 REPO = Path(__file__).resolve().parents[2]
 CONFIGS = REPO / "configs"
@@ -426,7 +428,6 @@ def run_suite(scale: str | Path, out: str | Path, only: Sequence[str] | None = N
 # --------------------------------------------------------------------------------------------------
 # The results page
 # --------------------------------------------------------------------------------------------------
-UNITS = {"linear_velocity": "m/s", "angular_velocity": "rad/s", "position": "m", "angle_deg": "deg"}
 SHORT = {"linear_velocity": "v", "angular_velocity": "ω", "position": "p", "angle_deg": "|θ|", "angle": "|θ|"}
 ERR_COLS = ("position", "angle_deg", "linear_velocity", "angular_velocity")
 BASELINE_LABEL = {"stay_put": "stay put (baseline)", "coulomb_slide": "Coulomb sliding (baseline, true μ)"}
@@ -469,12 +470,6 @@ class _Results:
     def baseline(self, name: str, which: str) -> dict | None:
         m = self.metrics(name)
         return (m or {}).get("results", {}).get(which)
-
-
-def _num(x: Any, digits: int = 4) -> str:
-    if x is None or (isinstance(x, float) and not math.isfinite(x)):
-        return "n/a"
-    return f"{x:.{digits}g}"
 
 
 def _pct(x: Any) -> str:

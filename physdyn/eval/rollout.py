@@ -16,10 +16,9 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from physdyn.data.windows import world_oriented_points
+from physdyn.data.windows import DELTA_KEYS, world_oriented_points
 from physdyn.geometry.rotations import quat_multiply, rotvec_to_quat
 
-DELTA_KEYS = ("delta_linear_velocity", "delta_angular_velocity", "delta_position", "delta_rotation")
 STATE_KEYS = ("com_position", "orientation_xyzw", "linear_velocity", "angular_velocity")
 
 
@@ -94,8 +93,9 @@ def integrate(p0: np.ndarray, q0: np.ndarray, v0: np.ndarray, w0: np.ndarray, de
         arr[:, 0] = _numpy(start).reshape(B, 3)
         for t in range(S):  # sequential sums, so a step-by-step roll-out gives bitwise the same numbers
             arr[:, t + 1] = arr[:, t] + d[delta][:, t]
+    step_quats = rotvec_to_quat(d["delta_rotation"])  # one call for all steps, not one per step
     for t in range(S):
-        q = quat_multiply(rotvec_to_quat(d["delta_rotation"][:, t]), out["orientation_xyzw"][:, t])
+        q = quat_multiply(step_quats[:, t], out["orientation_xyzw"][:, t])
         out["orientation_xyzw"][:, t + 1] = q / np.linalg.norm(q, axis=-1, keepdims=True)
     return out
 

@@ -81,3 +81,12 @@ def tilt_angle(q0_xyzw: np.ndarray, q_xyzw: np.ndarray) -> np.ndarray:
     rel = quat_to_matrix(quat_multiply(q_xyzw, quat_conjugate(np.broadcast_to(q0_xyzw, np.shape(q_xyzw)))))
     up_z = np.clip(rel[..., 2, 2], -1.0, 1.0)
     return np.arccos(up_z)
+
+
+def continuous_quat(q_xyzw: np.ndarray) -> np.ndarray:
+    """(T, 4) -> a copy whose consecutive quaternions have a non-negative dot product (q and -q are the same
+    rotation; trackers export them continuous, and averaging needs it)."""
+    q = np.array(q_xyzw, dtype=np.float64)
+    flips = np.cumprod(np.where(np.sum(q[1:] * q[:-1], axis=1) < 0, -1.0, 1.0))
+    q[1:] *= flips[:, None]
+    return q

@@ -20,11 +20,11 @@ from lightning import LightningModule
 
 from physdyn.config import ExperimentConfig, config_from_dict, to_dict
 from physdyn.data.normalization import Normalization
+from physdyn.data.windows import DELTA_KEYS
 from physdyn.errors import ConfigError
 from physdyn.models.losses import dynamics_loss
 from physdyn.registry import ENCODERS, HEADS, PREDICTORS
 
-DELTA_KEYS = ("delta_linear_velocity", "delta_angular_velocity", "delta_position", "delta_rotation")
 
 
 @dataclass
@@ -72,12 +72,14 @@ def learning_rate_factor(
 def _inference(module: torch.nn.Module):
     """Eval mode (batch norm uses its running statistics) and no gradients; restores the previous mode."""
     was_training = module.training
-    module.eval()
+    if was_training:  # a roll-out calls this every step: leave an eval-mode module alone
+        module.eval()
     try:
         with torch.no_grad():
             yield
     finally:
-        module.train(was_training)
+        if was_training:
+            module.train()
 
 
 class DynamicsModel(LightningModule):

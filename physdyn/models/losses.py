@@ -19,10 +19,12 @@ relative form finite when ``rest_threshold`` is 0.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import torch
 import torch.nn.functional as F
+
+from physdyn.config import LossWeights
 
 QUANTITIES = ("linear_velocity", "angular_velocity", "position", "rotation")  # order in the 12 changes
 
@@ -59,11 +61,11 @@ def dynamics_loss(
 ) -> LossTerms:
     """changes, targets: (B, T, 12) normalised [dv, dw, dp, dtheta]; topple_logit, topple_label: (B, T).
 
-    ``weights`` maps each of QUANTITIES and "topple" to its weight (default 1, topple 2).
+    ``weights`` maps each of QUANTITIES and "topple" to its weight (default: ``LossWeights``).
     """
     if kind not in ("relative", "absolute"):
         raise ValueError(f"loss kind must be 'relative' or 'absolute', got '{kind}'")
-    w = {**{q: 1.0 for q in QUANTITIES}, "topple": 2.0, **(weights or {})}
+    w = {**asdict(LossWeights()), **(weights or {})}  # the config's defaults, then the caller's
     terms: dict[str, torch.Tensor] = {}
     total = changes.new_zeros(())
     for i, name in enumerate(QUANTITIES):

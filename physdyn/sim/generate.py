@@ -171,7 +171,6 @@ def run_block(cfg: DataConfig, block_id: int, tasks: list[ShapeTask]) -> tuple[i
     world = state["world"]
     shapes: list[dict] = []
     sims: list[dict] = []
-    frames: list[Any] = []
     skipped, notes = [], []
     for task in tasks:
         family = state["families"].get(task.family) or build_family(cfg, task.family)
@@ -193,7 +192,6 @@ def run_block(cfg: DataConfig, block_id: int, tasks: list[ShapeTask]) -> tuple[i
                 )
                 traj = simulate(world, body, shape["spec"], init, cfg.rate_hz)
                 sims.append(dict(shape=len(shapes), init=init, drawn=drawn, length=len(traj), traj=traj))
-                frames.append(traj)
         finally:
             world.remove_body(body)
         shapes.append(shape)

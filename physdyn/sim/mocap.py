@@ -22,7 +22,7 @@ import trimesh
 
 from physdyn.config import PhysicsConfig
 from physdyn.errors import PhysdynError, ShapeError
-from physdyn.geometry.rotations import canonical_quat, matrix_to_quat, quat_multiply, quat_to_matrix, rotvec_to_quat
+from physdyn.geometry.rotations import canonical_quat, continuous_quat, matrix_to_quat, quat_conjugate, quat_multiply, quat_to_matrix, rotvec_to_quat
 from physdyn.sim.body import RigidBodySpec
 
 CSV_HEADER = "time,x,y,z,qx,qy,qz,qw"
@@ -150,17 +150,14 @@ def simulate_trial(world, body: int, shape: TrackedShape, rng: np.random.Generat
     from physdyn.geometry.poses import stable_orientations
     from physdyn.sim.bullet import pb
     from physdyn.sim.impulse import yaw_matrix
-    from physdyn.sim.trajectory import resting_com_position
+    from physdyn.sim.trajectory import place_at_rest
 
     phys, cid, spec = world.physics, world.client, shape.spec
     every = int(round(1.0 / (phys.time_step * settings.rate_hz)))
     rotations, probabilities = stable_orientations(shape.mesh, shape.com_mesh)
     pose = int(rng.choice(len(probabilities), p=probabilities))
     q_mesh = matrix_to_quat(yaw_matrix(float(rng.uniform(0, 2 * np.pi))) @ rotations[pose])
-    com0 = resting_com_position(spec, q_mesh)
-    q_principal = spec.principal_quat_xyzw
-    pb.resetBasePositionAndOrientation(body, com0.tolist(), quat_multiply(q_mesh, q_principal).tolist(), physicsClientId=cid)
-    pb.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=cid)
+    com0 = place_at_rest(world, body, spec, q_mesh)
     mu = phys.lateral_friction_object * phys.lateral_friction_ground
 
     heading = float(rng.uniform(0, 2 * np.pi))
@@ -178,7 +175,7 @@ def simulate_trial(world, body: int, shape: TrackedShape, rng: np.random.Generat
 
     rest_needed = int(np.ceil(settings.rest_after / phys.time_step))
     max_steps = release_step + int(settings.max_duration / phys.time_step)
-    q_principal_inv = q_principal * np.array([-1, -1, -1, 1])
+    q_principal_inv = quat_conjugate(spec.principal_quat_xyzw)
     rec: dict[str, list] = {"p": [], "q": [], "v": [], "w": []}
     step, rest = 0, 0
     while True:
@@ -210,7 +207,7 @@ def simulate_trial(world, body: int, shape: TrackedShape, rng: np.random.Generat
     noise_p = rng.normal(0.0, settings.position_noise_m / np.sqrt(3), (n, 3))
     noise_r = rng.normal(0.0, np.deg2rad(settings.rotation_noise_deg) / np.sqrt(3), (n, 3))
     csv_q = quat_multiply(rotvec_to_quat(noise_r), q_true)
-    csv_q = _continuous(csv_q)
+    csv_q = continuous_quat(csv_q)
     csv_p = origin + noise_p + np.array([0.0, 0.0, settings.floor_offset_m])
     return SyntheticTrial(
         time=time, com_position=com, orientation_xyzw=q_true,
@@ -218,14 +215,6 @@ def simulate_trial(world, body: int, shape: TrackedShape, rng: np.random.Generat
         csv_position=csv_p, csv_orientation=csv_q, push_start=push_start_step * phys.time_step,
         release=release_step * phys.time_step, friction=mu, floor_offset=settings.floor_offset_m,
     )
-
-
-def _continuous(q: np.ndarray) -> np.ndarray:
-    """Flip signs so consecutive quaternions have a positive dot product, as trackers export them."""
-    q = np.array(q, dtype=np.float64)
-    flips = np.cumprod(np.where(np.sum(q[1:] * q[:-1], axis=1) < 0, -1.0, 1.0))
-    q[1:] *= flips[:, None]
-    return q
 
 
 def write_trial_csv(path: str | Path, time: np.ndarray, position: np.ndarray, orientation_xyzw: np.ndarray) -> None:

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from physdyn.sim.bullet import pb
 
-from physdyn.geometry.rotations import matrix_to_quat, quat_multiply, quat_to_matrix, tilt_angle
+from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_matrix, tilt_angle
 from physdyn.sim.body import RigidBodySpec
 from physdyn.sim.world import PhysicsWorld
 
@@ -74,7 +74,7 @@ def place_at_rest(world: PhysicsWorld, body: int, spec: RigidBodySpec, orientati
     """Put the body at rest on the ground in this mesh-frame orientation; returns the com position."""
     q_mesh0 = np.asarray(orientation_xyzw, dtype=np.float64)
     # PyBullet's base frame is the principal frame: R_base = R_mesh @ A.
-    q_base = quat_multiply(q_mesh0, matrix_to_quat(spec.principal_axes))
+    q_base = quat_multiply(q_mesh0, spec.principal_quat_xyzw)
     com0 = resting_com_position(spec, q_mesh0)
     pb.resetBasePositionAndOrientation(body, com0.tolist(), q_base.tolist(), physicsClientId=world.client)
     pb.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=world.client)
@@ -112,7 +112,7 @@ def record(world: PhysicsWorld, body: int, spec: RigidBodySpec, rate_hz: float, 
         rest_steps = rest_steps + 1 if at_rest else 0
 
     # Back from the principal frame to the mesh frame: R_mesh = R_base @ A^T.
-    q_principal_inv = matrix_to_quat(spec.principal_axes) * np.array([-1, -1, -1, 1])
+    q_principal_inv = quat_conjugate(spec.principal_quat_xyzw)
     orientation = quat_multiply(np.asarray(quats), q_principal_inv)
     orientation /= np.linalg.norm(orientation, axis=1, keepdims=True)
     orientation = np.where(orientation[:, 3:4] < 0, -orientation, orientation)
