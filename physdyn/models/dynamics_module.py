@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from lightning import LightningModule
 
-from physdyn.config import ExperimentConfig, config_from_dict, to_dict
+from physdyn.config import ExperimentConfig, OptimConfig, config_from_dict, to_dict
 from physdyn.data.normalization import Normalization
 from physdyn.data.windows import DELTA_KEYS
 from physdyn.errors import ConfigError
@@ -66,6 +66,25 @@ def learning_rate_factor(
     if schedule == "step":
         return max(decay_rate ** math.floor(step / decay_every_steps), floor)
     return 1.0
+
+
+def adam_with_schedule(parameters, o: OptimConfig, total_steps: float, samples_per_step: int):
+    """Adam and its per-step learning-rate schedule (``learning_rate_factor``), for ``configure_optimizers``
+    of the dynamics model and of encoder pretraining alike."""
+    if o.lr <= 0 or o.lr_min <= 0 or o.lr_min > o.lr:
+        raise ConfigError(f"config key 'optim.lr_min': need 0 < lr_min <= lr, got lr={o.lr}, lr_min={o.lr_min}")
+    optimizer = torch.optim.Adam(parameters, lr=o.lr, weight_decay=o.weight_decay)
+    if o.schedule not in ("exponential", "step", "constant"):
+        raise ConfigError(f"config key 'optim.schedule': unknown '{o.schedule}'; use exponential, step or constant")
+    if o.schedule == "constant":
+        return optimizer
+    if o.schedule == "exponential" and not (math.isfinite(total_steps) and total_steps > 0):
+        warnings.warn("no planned step count (set trainer.max_steps or max_epochs); the learning rate stays constant", stacklevel=3)
+        return optimizer
+    factor = lambda step: learning_rate_factor(  # noqa: E731
+        o.schedule, step, total_steps, o.lr, o.lr_min, o.decay_rate, o.decay_samples / samples_per_step)
+    scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, factor)
+    return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}
 
 
 @contextlib.contextmanager
@@ -204,22 +223,9 @@ class DynamicsModel(LightningModule):
         self._log_terms("test", self.compute_loss(batch), len(batch["sim"]), on_step=False)
 
     def configure_optimizers(self):
-        o = self.config.optim
-        if o.lr <= 0 or o.lr_min <= 0 or o.lr_min > o.lr:
-            raise ConfigError(f"config key 'optim.lr_min': need 0 < lr_min <= lr, got lr={o.lr}, lr_min={o.lr_min}")
-        optimizer = torch.optim.Adam(self.parameters(), lr=o.lr, weight_decay=o.weight_decay)
-        if o.schedule not in ("exponential", "step", "constant"):
-            raise ConfigError(f"config key 'optim.schedule': unknown '{o.schedule}'; use exponential, step or constant")
         total = float(self.trainer.estimated_stepping_batches) if self._trainer is not None else math.inf
         world = self.trainer.world_size if self._trainer is not None else 1
-        if o.schedule == "constant" or (o.schedule == "exponential" and not (math.isfinite(total) and total > 0)):
-            if o.schedule == "exponential":
-                warnings.warn("no planned step count (set trainer.max_steps or max_epochs); the learning rate stays constant", stacklevel=2)
-            return optimizer
-        per_step = self.config.data.batch_size * world
-        factor = lambda step: learning_rate_factor(o.schedule, step, total, o.lr, o.lr_min, o.decay_rate, o.decay_samples / per_step)  # noqa: E731
-        scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, factor)
-        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}
+        return adam_with_schedule(self.parameters(), self.config.optim, total, self.config.data.batch_size * world)
 
     # ------------------------------------------------------------------ pretrained encoder
     def load_encoder_weights(self, path: str | Path) -> int:

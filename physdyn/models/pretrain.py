@@ -22,7 +22,7 @@ from lightning import LightningModule
 from torch import nn
 from torch.utils.data import DataLoader, TensorDataset
 
-from physdyn.config import PretrainConfig, PretrainDataConfig, load_config
+from physdyn.config import OptimConfig, PretrainConfig, PretrainDataConfig, load_config
 from physdyn.errors import ConfigError, PhysdynError, ShapeError
 from physdyn.registry import ENCODERS, SHAPE_FAMILIES
 
@@ -137,7 +137,8 @@ def augment(points: torch.Tensor) -> torch.Tensor:
 class ShapeClassifier(LightningModule):
     """A registered shape encoder + one linear layer to class logits."""
 
-    def __init__(self, encoder: dict, num_classes: int, point_scale: float, optim: dict, augment: bool = True):
+    def __init__(self, encoder: dict, num_classes: int, point_scale: float, optim: dict, augment: bool = True,
+                 batch_size: int = 1):
         super().__init__()
         self.save_hyperparameters()
         self.encoder = ENCODERS.build(encoder["name"], encoder.get("params", {}), "encoder.params")
@@ -166,14 +167,11 @@ class ShapeClassifier(LightningModule):
         self._step(batch, "val", False)
 
     def configure_optimizers(self):
-        o = self.hparams.optim
-        optimizer = torch.optim.Adam(self.parameters(), lr=o["lr"], weight_decay=o.get("weight_decay", 0.0))
+        from physdyn.models.dynamics_module import adam_with_schedule
+
         total = float(self.trainer.estimated_stepping_batches)
-        if o.get("schedule") != "exponential" or not np.isfinite(total) or total <= 0:
-            return optimizer
-        floor = o["lr_min"] / o["lr"]
-        sched = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda step: max(floor ** (step / total), floor))
-        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+        per_step = self.hparams.get("batch_size", 1) * self.trainer.world_size
+        return adam_with_schedule(self.parameters(), OptimConfig(**self.hparams.optim), total, per_step)
 
 
 def load_pretrain_config(path, overrides: list[str] | None = None) -> PretrainConfig:
@@ -219,7 +217,8 @@ def pretrain(config: PretrainConfig, overwrite: bool = False) -> PretrainResult:
     clouds = load_shape_clouds(cfg.data, cfg.seed)
     point_scale = float(np.linalg.norm(clouds.train_points, axis=-1).max()) or 1.0
     encoder_cfg = to_dict(cfg.encoder)
-    model = ShapeClassifier(encoder_cfg, len(clouds.classes), point_scale, to_dict(cfg.optim), cfg.data.augment)
+    model = ShapeClassifier(encoder_cfg, len(clouds.classes), point_scale, to_dict(cfg.optim), cfg.data.augment,
+                            batch_size=cfg.data.batch_size)
     save_config_yaml(cfg, out_dir / "config.yaml")
     ds = lambda p, l: TensorDataset(torch.from_numpy(p), torch.from_numpy(l))  # noqa: E731
     bs = cfg.data.batch_size

@@ -76,3 +76,19 @@ def test_pretrain_on_a_modelnet_layout_folder_learns_the_classes(tmp_path):
         pretrain(load_pretrain_config(PRETRAIN, [f"data.modelnet_root={tmp_path / 'missing'}", f"out_dir={tmp_path / 'o2'}"]))
     with pytest.raises(ConfigError, match="data.families.chairs"):
         load_pretrain_config(PRETRAIN, ["data.families.chairs=3"])
+
+
+def test_pretraining_follows_the_step_learning_rate_schedule(tmp_path):
+    # Pretraining shares fit's optimiser set-up: `optim.schedule=step` once stayed constant here.
+    out = tmp_path / "pre"
+    cfg = load_pretrain_config(PRETRAIN, [
+        f"out_dir={out}", "data.families.primitives=3", "data.families.mugs=3", *SMALL_ENCODER,
+        "data.batch_size=4", "optim.schedule=step", "optim.decay_samples=4", "optim.decay_rate=0.5",
+    ])
+    pretrain(cfg)
+    ckpt = torch.load(out / "last.ckpt", map_location="cpu", weights_only=False)
+    assert ckpt["global_step"] == 3
+    assert ckpt["optimizer_states"][0]["param_groups"][0]["lr"] == pytest.approx(1e-3 * 0.5**3)
+    with pytest.raises(ConfigError, match="optim.lr_min"):
+        pretrain(load_pretrain_config(PRETRAIN, [f"out_dir={tmp_path / 'bad'}", *SMALL_ENCODER, "optim.lr_min=1.0",
+                                                  "data.families.primitives=3", "data.families.mugs=3"]))
