@@ -16,7 +16,6 @@ import json
 import math
 import os
 import re
-import tempfile
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,6 +24,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from physdyn.errors import PhysdynError
+from physdyn.files import atomic_output
 
 BUNDLED_CHECKPOINT = Path(__file__).resolve().parents[1] / "assets" / "bundled.ckpt"
 OUTPUT_EXTENSIONS = (".json", ".npz", ".csv")
@@ -361,21 +361,15 @@ def write_prediction(result: dict[str, Any], path: str | Path, overwrite: bool =
     path = check_output_path(path, overwrite)
     path.parent.mkdir(parents=True, exist_ok=True)
     ext = path.suffix.lower()
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            if ext == ".json":
-                fh.write(json.dumps(to_jsonable(result), indent=1).encode())
-            elif ext == ".npz":
-                np.savez(fh, **_npz_arrays(result))
-            else:
-                fh.write(_csv_text(result).encode())
+    with atomic_output(path) as tmp, open(tmp, "wb") as fh:
+        if ext == ".json":
+            fh.write(json.dumps(to_jsonable(result), indent=1).encode())
+        elif ext == ".npz":
+            np.savez(fh, **_npz_arrays(result))
+        else:
+            fh.write(_csv_text(result).encode())
         if not overwrite and path.exists():
             raise PredictionError(f"output {path} appeared while writing; pass --overwrite to replace it")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     return path
 
 

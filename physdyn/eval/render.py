@@ -171,25 +171,18 @@ def render_animation(mesh: Any, result: dict[str, Any], path: str | Path, fps: f
 
 
 def _write(images: list, path: Path, fps: float) -> None:
-    import os
-    import tempfile
-
     from PIL import Image
 
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
+    from physdyn.files import atomic_output
+
+    with atomic_output(path, suffix=path.suffix) as tmp:
         if path.suffix.lower() == ".gif":
             palette = images[0].quantize(colors=128, method=Image.Quantize.MEDIANCUT)
             frames = [im.quantize(palette=palette, dither=Image.Dither.NONE) for im in images]
             frames[0].save(tmp, format="GIF", save_all=True, append_images=frames[1:],
                            duration=int(round(1000 / fps)), loop=0, disposal=1)
         else:
-            _write_mp4(images, tmp, fps)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+            _write_mp4(images, str(tmp), fps)
 
 
 def _write_mp4(images: list, path: str, fps: float) -> None:

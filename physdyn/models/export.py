@@ -6,13 +6,12 @@
 from __future__ import annotations
 
 import argparse
-import os
-import tempfile
 from pathlib import Path
 
 import torch
 
 from physdyn.errors import PhysdynError
+from physdyn.files import atomic_output
 
 # What DynamicsModel.load_from_checkpoint needs; the optimiser, loops and callbacks are only for resuming.
 KEEP = ("state_dict", "hyper_parameters", "hparams_name", "pytorch-lightning_version", "epoch", "global_step")
@@ -29,10 +28,8 @@ def export_checkpoint(src: str | Path, dst: str | Path, overwrite: bool = False)
         raise PhysdynError(f"{src} is not a `physdyn fit` checkpoint")
     slim = {key: checkpoint[key] for key in KEEP if key in checkpoint}
     dst.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=dst.parent, suffix=".tmp")
-    os.close(fd)
-    torch.save(slim, tmp)
-    os.replace(tmp, dst)  # never a half-written checkpoint under the final name
+    with atomic_output(dst) as tmp:  # never a half-written checkpoint under the final name
+        torch.save(slim, tmp)
     return dst
 
 
