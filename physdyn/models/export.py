@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import torch
@@ -39,7 +40,11 @@ def main() -> None:
     parser.add_argument("dst")
     parser.add_argument("--overwrite", action="store_true")
     args = parser.parse_args()
-    out = export_checkpoint(args.src, args.dst, args.overwrite)
+    try:
+        out = export_checkpoint(args.src, args.dst, args.overwrite)
+    except PhysdynError as exc:  # one line, like the physdyn command
+        print(f"export: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
     print(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB)")
 
 
