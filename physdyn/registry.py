@@ -91,20 +91,24 @@ class Registry(Generic[T]):
     def names(self) -> list[str]:
         return [e.name for e in self.entries()]
 
-    def get(self, name: str) -> type[T]:
+    def get(self, name: str, name_key: str = "") -> type[T]:
+        """The class registered as ``name``; an unknown name is a ConfigError naming the config key
+        ``name_key`` (e.g. ``model.encoder.name``) when given."""
         self._load()
         if name not in self._entries:
             known = ", ".join(self.names()) or "none"
-            raise ConfigError(f"unknown {self.kind} '{name}'; registered: {known}")
+            prefix = f"config key '{name_key}': " if name_key else ""
+            raise ConfigError(f"{prefix}unknown {self.kind} '{name}'; registered: {known}")
         return self._entries[name].cls
 
-    def resolve_config(self, name: str, params: Any = None, where: str = "") -> Any:
+    def resolve_config(self, name: str, params: Any = None, where: str = "", name_key: str = "") -> Any:
         """Validate ``params`` (a mapping) against the component's ``Config`` and return a typed copy.
 
-        Unknown keys and wrong types raise a one-line ``ConfigError`` naming ``where.key``.
+        Unknown keys and wrong types raise a one-line ``ConfigError`` naming ``where.key``; an unknown
+        ``name`` one naming ``name_key``.
         """
-        entry_cls = self.get(name)
-        cfg_cls = Entry(name, entry_cls, "").config_class
+        self.get(name, name_key)
+        cfg_cls = self._entries[name].config_class
         params = {} if params is None else params
         if OmegaConf.is_config(params):
             params = OmegaConf.to_container(params, resolve=True)

@@ -180,12 +180,7 @@ def load_pretrain_config(path, overrides: list[str] | None = None) -> PretrainCo
     cfg = load_config(PretrainConfig, path, overrides)
     if not cfg.encoder.name:
         raise ConfigError(f"config key 'encoder.name': missing; registered: {', '.join(ENCODERS.names())}")
-    try:
-        ENCODERS.resolve_config(cfg.encoder.name, cfg.encoder.params, "encoder.params")
-    except ConfigError as exc:
-        if "registered" in str(exc):
-            raise ConfigError(f"config key 'encoder.name': {exc}") from None
-        raise
+    ENCODERS.resolve_config(cfg.encoder.name, cfg.encoder.params, "encoder.params", name_key="encoder.name")
     for name in cfg.data.families:
         if name not in SHAPE_FAMILIES.names():
             raise ConfigError(f"config key 'data.families.{name}': unknown shape family; registered: {', '.join(SHAPE_FAMILIES.names())}")

@@ -66,12 +66,7 @@ def validate_experiment_config(cfg: ExperimentConfig) -> ExperimentConfig:
     for section, registry, comp in (("encoder", ENCODERS, m.encoder), ("predictor", PREDICTORS, m.predictor), ("head", HEADS, m.head)):
         if not comp.name:
             raise ConfigError(f"config key 'model.{section}.name': missing; registered: {', '.join(registry.names())}")
-        try:
-            registry.resolve_config(comp.name, comp.params, f"model.{section}.params")
-        except ConfigError as exc:
-            if "unknown" in str(exc) and "registered" in str(exc):
-                raise ConfigError(f"config key 'model.{section}.name': {exc}") from None
-            raise
+        registry.resolve_config(comp.name, comp.params, f"model.{section}.params", name_key=f"model.{section}.name")
     if cfg.loss.kind not in ("relative", "absolute"):
         raise ConfigError(f"config key 'loss.kind': '{cfg.loss.kind}' is not relative or absolute")
     if cfg.optim.schedule not in ("exponential", "step", "constant"):
