@@ -70,8 +70,9 @@ def coulomb_slide(com_position0: np.ndarray, orientation0_xyzw: np.ndarray, lin_
     p0, q0, v0, w0 = _initial(com_position0, orientation0_xyzw, lin_vel0, ang_vel0)
     B, T = len(p0), steps + 1
     mu = np.broadcast_to(np.asarray(friction, np.float64), (B,))
-    if np.any(mu <= 0):
-        raise ValueError(f"friction must be positive, got {mu[mu <= 0][:3]}")
+    bad = ~(mu > 0)  # NaN (unknown friction, e.g. imported trials) fails too, rather than rolling out NaNs
+    if bad.any():
+        raise ValueError(f"friction must be positive and known, got {mu[bad][:3]}")
     u = v0.copy()
     u[:, 2] = 0.0
     s0 = np.linalg.norm(u, axis=-1)

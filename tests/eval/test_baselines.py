@@ -66,6 +66,13 @@ def test_coulomb_slide_closed_form_by_hand():
     assert out.topple_probability.shape == (1, 21) and not out.topple_probability.any()
 
 
+def test_coulomb_slide_refuses_unknown_or_non_positive_friction():
+    args = (np.zeros((2, 3)), np.tile([0, 0, 0, 1.0], (2, 1)), np.tile([1.0, 0, 0], (2, 1)), np.zeros((2, 3)))
+    for friction in ([0.25, np.nan], [0.25, 0.0], [-0.1, 0.25]):
+        with pytest.raises(ValueError, match="friction must be positive and known"):
+            coulomb_slide(*args, steps=5, friction=np.array(friction), rate_hz=15)
+
+
 def test_stay_put_never_moves():
     q = np.array([[0, 0, np.sin(0.3), np.cos(0.3)]])
     out = stay_put(np.array([[0.1, 0.2, 0.3]]), q, np.array([[1.0, 0, 0]]), np.array([[0, 0, 2.0]]), steps=5)
