@@ -136,7 +136,7 @@ def prepare_body(mesh: Any, scale: float = 1.0, density: float | None = None) ->
 
     from physdyn.config import MassConfig
     from physdyn.errors import ShapeError
-    from physdyn.geometry.mass import exact_mass_properties
+    from physdyn.geometry.mass import solid_mass_properties
     from physdyn.geometry.mesh_io import check_mesh, load_mesh, prepare_mesh
     from physdyn.sim.body import RigidBodySpec
 
@@ -157,10 +157,7 @@ def prepare_body(mesh: Any, scale: float = 1.0, density: float | None = None) ->
         raise PredictionError(f"mesh must be a file path or a trimesh.Trimesh, got {type(mesh).__name__}")
     prepared = prepare_mesh(raw, name)
     density = MassConfig().density if density is None else float(density)
-    solid = prepared.mesh if prepared.watertight else prepared.mesh.convex_hull
-    props = exact_mass_properties(solid, density)
-    if not np.isfinite(props.mass) or props.mass <= 0:
-        raise ShapeError(f"mesh {name} has no positive volume; check it is a closed solid")
+    props = solid_mass_properties(prepared.mesh, prepared.watertight, density, f"mesh {name}")
     spec = RigidBodySpec.from_mesh(prepared.mesh, props)
     return PreparedBody(mesh=prepared.mesh, spec=spec, name=name, notes=list(prepared.warnings))
 

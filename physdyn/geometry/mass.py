@@ -96,3 +96,18 @@ def mass_properties(mesh: trimesh.Trimesh, density: float, method: str = "exact"
     if method == "voxel":
         return voxel_mass_properties(mesh, density, voxel_base_pitch)
     raise ValueError(f"mass.method must be 'exact' or 'voxel', got '{method}'")
+
+
+def solid_mass_properties(mesh: trimesh.Trimesh, watertight: bool, density: float, source: str,
+                          method: str = "exact", voxel_base_pitch: float = 0.025) -> MassProperties:
+    """Mass properties of a prepared mesh as the simulator needs them: of the solid it bounds, or of its
+    convex hull (exact) when it bounds none. A shape without a positive volume is a one-line ShapeError."""
+    from physdyn.errors import ShapeError
+
+    if watertight:
+        props = mass_properties(mesh, density, method, voxel_base_pitch)
+    else:
+        props = exact_mass_properties(mesh.convex_hull, density)
+    if not np.isfinite(props.mass) or props.mass <= 0:
+        raise ShapeError(f"{source}: non-positive volume; check the mesh is a closed solid")
+    return props

@@ -134,7 +134,7 @@ def _worker_state(cfg: DataConfig) -> dict:
 
 def prepare_shape(cfg: DataConfig, family, task: ShapeTask) -> dict:
     """Draw one shape and compute everything stored about it. Raises ShapeError if it is unusable."""
-    from physdyn.geometry.mass import exact_mass_properties, mass_properties
+    from physdyn.geometry.mass import exact_mass_properties, solid_mass_properties
     from physdyn.geometry.mesh_io import prepare_mesh
     from physdyn.geometry.poses import stable_orientations
     from physdyn.geometry.sampling import sample_surface_points
@@ -144,14 +144,10 @@ def prepare_shape(cfg: DataConfig, family, task: ShapeTask) -> dict:
     instance = family.make(task.index, np.random.default_rng(shape_ss))
     prepared = prepare_mesh(instance.mesh, instance.source)
     mesh, notes = prepared.mesh, list(prepared.warnings)
-    if prepared.watertight:
-        props = mass_properties(mesh, cfg.mass.density, cfg.mass.method, cfg.mass.voxel_pitch)
-        exact = exact_mass_properties(mesh, cfg.mass.density) if cfg.mass.method != "exact" else props
-    else:
-        # prepare_mesh's warning already tells the user the hull is used.
-        props = exact = exact_mass_properties(mesh.convex_hull, cfg.mass.density)
-    if not np.isfinite(props.mass) or props.mass <= 0:
-        raise ShapeError(f"{instance.source}: non-positive volume; check the mesh is a closed solid")
+    # Not watertight: the hull's exact properties (prepare_mesh's warning already tells the user).
+    props = solid_mass_properties(mesh, prepared.watertight, cfg.mass.density, instance.source, cfg.mass.method,
+                                  cfg.mass.voxel_pitch)
+    exact = exact_mass_properties(mesh, cfg.mass.density) if prepared.watertight and cfg.mass.method != "exact" else props
     spec = RigidBodySpec.from_mesh(mesh, props)
     rotations, probabilities = stable_orientations(mesh, props.com)
     points = sample_surface_points(mesh, cfg.num_points, cfg.oversample, seed=int(points_ss.generate_state(1)[0]))

@@ -79,7 +79,7 @@ def tracked_shape(box: str | None = None, mesh_path: str | None = None, scale: f
                   density: float = DEFAULT_DENSITY) -> TrackedShape:
     """The tracked shape from ``--shape box:W,D,H`` (a box centred at its mesh origin, edges along the mesh
     axes) or ``--mesh FILE`` (read in its own frame, times ``scale``). Mass at uniform ``density``."""
-    from physdyn.geometry.mass import exact_mass_properties
+    from physdyn.geometry.mass import solid_mass_properties
     from physdyn.geometry.mesh_io import load_mesh, prepare_mesh
 
     if (box is None) == (mesh_path is None):
@@ -91,10 +91,7 @@ def tracked_shape(box: str | None = None, mesh_path: str | None = None, scale: f
         mesh = load_mesh(mesh_path, scale)
         source = str(mesh_path) + (f" x{scale:g}" if scale != 1.0 else "")
     prepared = prepare_mesh(mesh, source)
-    solid = prepared.mesh if prepared.watertight else prepared.mesh.convex_hull
-    props = exact_mass_properties(solid, density)
-    if not np.isfinite(props.mass) or props.mass <= 0:
-        raise ShapeError(f"{source}: non-positive volume; check the mesh is a closed solid")
+    props = solid_mass_properties(prepared.mesh, prepared.watertight, density, source)
     spec = RigidBodySpec.from_mesh(prepared.mesh, props)
     return TrackedShape(mesh=prepared.mesh, source=source, spec=spec, com_mesh=spec.com_mesh, volume=float(props.volume))
 
