@@ -73,7 +73,7 @@ class Bottles(ShapeFamily):
             [lip_radius, height],
             [0.0, height],
         ]
-        mesh = revolve_profile(_drop_repeats(np.array(profile)), sections=cfg.sections)
+        mesh = revolve_profile(np.array(profile), sections=cfg.sections)
         source = format_source(
             "bottles",
             height=height,
@@ -89,10 +89,3 @@ class Bottles(ShapeFamily):
         )
         return finish(mesh, self.category, source)
 
-
-def _drop_repeats(profile: np.ndarray) -> np.ndarray:
-    """Remove consecutive points closer than 0.1 mm: revolve drops the near-zero-area faces between them
-    and would leave a hole."""
-    keep = np.ones(len(profile), dtype=bool)
-    keep[1:] = np.linalg.norm(np.diff(profile, axis=0), axis=1) > 1e-4
-    return profile[keep]

@@ -43,6 +43,11 @@ def revolve_profile(profile_rz: np.ndarray, sections: int, angle_offset: float =
     profile_rz = np.asarray(profile_rz, dtype=np.float64)
     if profile_rz[0, 0] != 0.0 or profile_rz[-1, 0] != 0.0:
         raise ValueError("profile must start and end on the axis (r = 0) to give a closed solid")
+    # Consecutive points closer than 0.1 mm: revolve drops the near-zero-area faces between them, which
+    # would leave a hole; keep the first of each such run.
+    keep = np.ones(len(profile_rz), dtype=bool)
+    keep[1:] = np.linalg.norm(np.diff(profile_rz, axis=0), axis=1) > 1e-4
+    profile_rz = profile_rz[keep]
     transform = trimesh.transformations.rotation_matrix(angle_offset, [0, 0, 1]) if angle_offset else None
     # process=True merges the coincident vertices on the axis, which closes the poles.
     mesh = trimesh.creation.revolve(profile_rz, sections=sections, transform=transform, process=True)
