@@ -16,7 +16,6 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from physdyn.errors import ConfigError
-from physdyn.registry import _omegaconf_message
 
 S = TypeVar("S")
 
@@ -155,7 +154,7 @@ def load_config(schema: Type[S], path: str | Path | None = None, overrides: List
             merged = OmegaConf.merge(merged, *[OmegaConf.from_dotlist([item]) for item in overrides])
         return OmegaConf.to_object(merged)  # type: ignore[return-value]
     except OmegaConfBaseException as exc:
-        raise ConfigError(_omegaconf_message(exc)) from None
+        raise ConfigError(omegaconf_message(exc)) from None
 
 
 def _drop_params_of_switched_components(merged: DictConfig, overrides: List[str]) -> None:
@@ -177,11 +176,20 @@ def to_dict(config: Any) -> dict:
     return OmegaConf.to_container(OmegaConf.structured(config), resolve=True)  # type: ignore[return-value]
 
 
-def config_from_dict(schema: Type[S], data: dict) -> S:
+def config_from_dict(schema: Type[S], data: dict, where: str = "") -> S:
+    """``data`` checked against ``schema``; an unknown key or a wrong type is a ConfigError naming
+    ``where.key``."""
     try:
         return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(schema), data))  # type: ignore
     except OmegaConfBaseException as exc:
-        raise ConfigError(_omegaconf_message(exc)) from None
+        raise ConfigError(omegaconf_message(exc, where)) from None
+
+
+def omegaconf_message(exc: OmegaConfBaseException, where: str = "") -> str:
+    key = getattr(exc, "full_key", None) or ""
+    full = ".".join(k for k in (where, str(key)) if k)
+    first_line = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    return f"config key '{full}': {first_line}" if full else f"config: {first_line}"
 
 
 # --------------------------------------------------------------------------------------------------

@@ -15,8 +15,8 @@ from importlib.metadata import entry_points
 from typing import Any, Callable, Generic, TypeVar
 
 from omegaconf import OmegaConf
-from omegaconf.errors import OmegaConfBaseException
 
+from physdyn.config import config_from_dict
 from physdyn.errors import ConfigError
 
 T = TypeVar("T")
@@ -116,24 +116,13 @@ class Registry(Generic[T]):
             if params:
                 raise ConfigError(f"{where or self.kind}: {self.kind} '{name}' takes no parameters")
             return None
-        try:
-            merged = OmegaConf.merge(OmegaConf.structured(cfg_cls), params)
-            return OmegaConf.to_object(merged)
-        except OmegaConfBaseException as exc:
-            raise ConfigError(_omegaconf_message(exc, where)) from None
+        return config_from_dict(cfg_cls, params, where)
 
     def build(self, name: str, params: Any = None, where: str = "", **kwargs: Any) -> T:
         """Instantiate ``name`` with its validated config (first argument) and runtime ``kwargs``."""
         cls = self.get(name)
         config = self.resolve_config(name, params, where)
         return cls(config, **kwargs) if config is not None else cls(**kwargs)  # type: ignore[call-arg]
-
-
-def _omegaconf_message(exc: OmegaConfBaseException, where: str = "") -> str:
-    key = getattr(exc, "full_key", None) or ""
-    full = ".".join(k for k in (where, str(key)) if k)
-    first_line = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-    return f"config key '{full}': {first_line}" if full else f"config: {first_line}"
 
 
 SHAPE_FAMILIES: Registry = Registry(
