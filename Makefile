@@ -37,6 +37,8 @@ quickstart: install
 	@echo "  model          runs/quickstart/best.ckpt   (logs: runs/quickstart/csv, runs/quickstart/tensorboard)"
 	@echo "  test report    reports/quickstart/report.md, metrics.json, *.png"
 	@echo "  prediction     reports/quickstart/bracket.json, reports/quickstart/bracket.gif"
+	@echo
+	@$(PYTHON) -c "import json; print('verdict:', json.load(open('reports/quickstart/metrics.json'))['verdict'])"
 
 test: install
 	$(PYTHON) -m pytest

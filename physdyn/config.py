@@ -27,7 +27,9 @@ S = TypeVar("S")
 class PhysicsConfig:
     """PyBullet settings. Defaults are the paper's where it says, see docs/conventions.md."""
 
-    time_step: float = 1.0 / 240.0
+    # 1/960 s (conventions, 2026-11-23): at 1/240 s the contact chatters and non-toppling objects pick up a
+    # spurious tilt spin while sliding (median 0.59 rad/s) that a model would have to learn as noise.
+    time_step: float = 1.0 / 960.0
     gravity: float = -9.81
     lateral_friction_object: float = 0.5
     lateral_friction_ground: float = 0.5  # Bullet multiplies: effective Coulomb mu = 0.25
@@ -216,6 +218,11 @@ class TrainDataConfig:
     num_workers: int = 0  # arrays are in memory; workers only help for very large models of data
     val_windows_per_sim: int = 1
     val_seed: int = 12345  # validation windows are fixed by this seed
+    # Scaling of inputs and targets: "max" (the paper's: one scale per quantity, its largest value) or "std"
+    # (per channel: mean and standard deviation of the training split). Measured in docs/ablations.md.
+    normalization: str = "max"
+    # Share of training windows that start at step 0, as every roll-out does (the rest start at random).
+    first_window_fraction: float = 0.0
 
 
 @dataclass
@@ -224,6 +231,13 @@ class ModelConfig:
     predictor: ComponentConfig = field(default_factory=lambda: ComponentConfig("lstm"))
     head: ComponentConfig = field(default_factory=lambda: ComponentConfig("topple"))
     encoder_init: Optional[str] = None  # encoder weights from `physdyn pretrain` (encoder.pt)
+    # An analytic prior the network corrects (it predicts the residual): "none" (the paper), "kinematic"
+    # (dp = v dt, dtheta = w dt, constant velocities) or "coulomb" (kinematic, with the horizontal velocity
+    # slowed by Coulomb friction mu g, mu the training data's median friction). See docs/ablations.md.
+    prior: str = "none"
+    # Feed the object's current orientation relative to step 0 (6D rotation representation) at every step;
+    # the paper feeds velocities only, so the predictor is never told how the object has turned.
+    orientation_input: bool = False
 
 
 @dataclass
@@ -237,7 +251,8 @@ class LossWeights:
 
 @dataclass
 class LossConfig:
-    kind: str = "relative"  # relative (the paper's) | absolute (the real-world model's)
+    kind: str = "relative"  # relative (the paper's) | absolute (the real-world model's) | huber
+    huber_delta: float = 0.05  # kind=huber: quadratic below this error norm (normalised units), linear above
     weights: LossWeights = field(default_factory=LossWeights)
     eps: float = 1e-6  # added to the relative loss's denominator
     rest_threshold: float = 1e-3  # true changes below this norm (normalised units) use the absolute error
@@ -251,6 +266,18 @@ class OptimConfig:
     decay_rate: float = 0.75  # schedule=step: multiply by this every decay_samples sequences (the paper's)
     decay_samples: int = 300_000
     weight_decay: float = 0.0
+
+
+@dataclass
+class RolloutTrainingConfig:
+    """How the velocities fed during training relate to the truth (evaluation feeds the model's own)."""
+
+    # Probability per training window of feeding the model's own velocity predictions (detached) instead of
+    # the true ones from step 1 on: 0 is teacher forcing (the paper), 1 a full roll-out.
+    feedback: float = 0.0
+    # Std of Gaussian noise added to the fed velocities, in normalised units (as learned simulators do);
+    # the velocity targets are corrected so the model learns to return to the true trajectory.
+    input_noise: float = 0.0
 
 
 @dataclass
@@ -272,6 +299,7 @@ class ExperimentConfig:
     model: ModelConfig = field(default_factory=ModelConfig)
     loss: LossConfig = field(default_factory=LossConfig)
     optim: OptimConfig = field(default_factory=OptimConfig)
+    rollout: RolloutTrainingConfig = field(default_factory=RolloutTrainingConfig)
     trainer: Dict[str, Any] = field(default_factory=dict)  # passed to lightning.Trainer as is
     early_stopping: EarlyStoppingConfig = field(default_factory=EarlyStoppingConfig)
     progress_bar: bool = True

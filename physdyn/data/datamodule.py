@@ -67,8 +67,10 @@ class WindowCollate:
     same windows every epoch and every run.
     """
 
-    def __init__(self, source: WindowSource, num_points: int | None, fixed_seed: int | None = None):
+    def __init__(self, source: WindowSource, num_points: int | None, fixed_seed: int | None = None,
+                 first_window_fraction: float = 0.0):
         self.source = source
+        self.first_window_fraction = first_window_fraction
         self.num_points = num_points
         self.fixed_seed = fixed_seed
         self._rng: np.random.Generator | None = None
@@ -89,7 +91,10 @@ class WindowCollate:
         n_avail = self.source.store.points.shape[1]
         if self.fixed_seed is None:
             rng = self._process_rng()
-            starts = np.where(starts < 0, self.source.random_starts(sims, rng), starts)
+            drawn = self.source.random_starts(sims, rng)
+            if self.first_window_fraction > 0:  # windows that start where every roll-out starts
+                drawn = np.where(rng.random(len(sims)) < self.first_window_fraction, 0, drawn)
+            starts = np.where(starts < 0, drawn, starts)
             index = subsample_indices(n_avail, self.num_points, rng, len(sims))
         else:
             index = None
@@ -154,7 +159,7 @@ class DynamicsDataModule(LightningDataModule):
                 f"(categories={list(cfg.categories)}, exclude_categories={list(cfg.exclude_categories)})"
             )
         self.source = WindowSource(self.store, cfg.window, cfg.num_points)
-        self.normalization = compute_normalization(self.store, self.sims.train, self.source.targets)
+        self.normalization = compute_normalization(self.store, self.sims.train, self.source.targets, cfg.normalization)
         if len(self.sims.val) == 0:
             warnings.warn(
                 f"{cfg.store} has no validation simulations; validating on fixed windows of the training "
@@ -186,7 +191,8 @@ class DynamicsDataModule(LightningDataModule):
         # Batch norm cannot train on a batch of one: drop a last batch of a single window (and only that, so
         # an epoch otherwise sees every training simulation once).
         drop = len(ds) > self.config.batch_size and len(ds) % self.config.batch_size == 1
-        return self._loader(ds, WindowCollate(self.source, self.config.num_points), True, drop)
+        collate = WindowCollate(self.source, self.config.num_points, first_window_fraction=self.config.first_window_fraction)
+        return self._loader(ds, collate, True, drop)
 
     def val_dataloader(self) -> DataLoader:
         sims = self.sims.train if self.val_uses_train else self.sims.val

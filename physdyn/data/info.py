@@ -13,6 +13,26 @@ def _stats(x: np.ndarray) -> dict:
     return {"mean": float(np.mean(x)), "median": float(np.median(x)), "min": float(np.min(x)), "max": float(np.max(x))}
 
 
+SLIDING_SPEED = 0.05  # m/s: a recorded step with |v_xy| above this is sliding
+FAITHFUL_CHATTER = 0.15  # rad/s: a store above this carries contact noise (conventions: "Contact noise")
+
+
+def tilt_chatter(d: StoreData) -> float | None:
+    """The store's contact noise (conventions): the median, over non-toppling simulations with at least two
+    sliding steps (|v_xy| > 5 cm/s), of the median |w_xy| (rad/s, world frame) over those steps. A sliding
+    object that does not topple should not spin about a horizontal axis; PyBullet's contact chatter at a
+    coarse physics step makes it do so. None when no simulation qualifies."""
+    speed = np.linalg.norm(d.linear_velocity[:, :2], axis=1)
+    tilt_spin = np.linalg.norm(d.angular_velocity[:, :2], axis=1)
+    per_sim = []
+    for i in np.flatnonzero(~d.toppled.astype(bool)):
+        frames = slice(d.start[i], d.start[i + 1])
+        sliding = speed[frames] > SLIDING_SPEED
+        if sliding.sum() >= 2:
+            per_sim.append(np.median(tilt_spin[frames][sliding]))
+    return float(np.median(per_sim)) if per_sim else None
+
+
 def summarize(d: StoreData) -> dict:
     cat_of_sim = d.sim_category()
     shape_split = np.zeros(d.num_shapes, dtype=int)
@@ -45,6 +65,7 @@ def summarize(d: StoreData) -> dict:
         "physics": d.attrs.get("physics", {}),
         "mass_method": d.attrs.get("config", {}).get("mass", {}).get("method", "exact"),
         "skipped_shapes": len(d.attrs.get("skipped", [])),
+        "tilt_chatter_rad_s": tilt_chatter(d),
     }
     if "shapes/exact_mass" in d.extra and out["mass_method"] != "exact":
         exact = d.extra["shapes/exact_mass"]
@@ -88,6 +109,12 @@ def format_summary(s: dict) -> str:
         lines.append(f"voxel vs exact mass error     {fmt({k: 100 * v for k, v in s['voxel_vs_exact_mass_error'].items()}, ' %')}")
     if "voxel_vs_exact_inertia_error" in s:
         lines.append(f"voxel vs exact inertia error  {fmt({k: 100 * v for k, v in s['voxel_vs_exact_inertia_error'].items()}, ' %')}")
+    chatter = s.get("tilt_chatter_rad_s")
+    if chatter is not None:
+        verdict = "faithful" if chatter < FAITHFUL_CHATTER else (
+            "NOISY: models must learn contact chatter; simulate at physics.time_step=0.00104167 (1/960 s)")
+        lines.append(f"contact    tilt chatter {chatter:.3f} rad/s (median |w_xy| of non-toppling sims while sliding; "
+                     f"< {FAITHFUL_CHATTER} is faithful): {verdict}")
     phys = s["physics"]
     if phys:
         lines.append("physics    " + ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in phys.items()))

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from physdyn.data.store import StoreData
-from physdyn.geometry.rotations import quat_to_matrix, world_delta_rotvec
+from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_matrix, world_delta_rotvec
 
 # The per-step changes a model predicts, in the order of its 12 outputs [dv, dw, dp, dtheta].
 DELTA_KEYS = ("delta_linear_velocity", "delta_angular_velocity", "delta_position", "delta_rotation")
@@ -26,7 +26,7 @@ DELTA_KEYS = ("delta_linear_velocity", "delta_angular_velocity", "delta_position
 WINDOW_KEYS = (
     "points", "linear_velocity", "angular_velocity", "delta_linear_velocity", "delta_angular_velocity",
     "delta_position", "delta_rotation", "topple_label", "valid", "com_position0", "orientation0_xyzw",
-    "sim", "start",
+    "sim", "start", "relative_orientation_xyzw",
 )
 
 
@@ -65,6 +65,12 @@ def frame_targets(store: StoreData, frames: np.ndarray | None = None) -> FrameTa
     )
 
 
+def relative_rotation(q_first: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """q_first (B, 4), q (B, T, 4) xyzw -> (B, T, 4) world-frame rotation from the first pose to each pose:
+    R_t R_first^T, the object's turn since the point cloud was oriented."""
+    return quat_multiply(q, np.broadcast_to(quat_conjugate(q_first)[:, None, :], q.shape))
+
+
 def world_oriented_points(points_body: np.ndarray, orientation_xyzw: np.ndarray) -> np.ndarray:
     """points_body: (..., N, 3) body frame; orientation_xyzw: (..., 4) of the mesh frame -> (..., N, 3) R @ p."""
     R = quat_to_matrix(orientation_xyzw)
@@ -85,7 +91,8 @@ class WindowSource:
     points (B, N, 3) float32 world-oriented body frame; linear_velocity, angular_velocity and the four
     ``delta_*`` (B, T, 3) float32; topple_label (B, T) float32 (label of step t+1); valid (B, T) bool
     (False where step t+1 is padding); com_position0 (B, 3), orientation0_xyzw (B, 4) float64 (pose at
-    the window's first step); sim, start (B,) int64.
+    the window's first step); sim, start (B,) int64; relative_orientation_xyzw (B, T, 4) float32, the
+    world-frame rotation from the window's first step to step t (``relative_rotation``).
     """
 
     def __init__(self, store: StoreData, window: int, num_points: int | None = None):
@@ -131,4 +138,5 @@ class WindowSource:
             "orientation0_xyzw": s.orientation_xyzw[first],
             "sim": sims,
             "start": starts,
+            "relative_orientation_xyzw": relative_rotation(s.orientation_xyzw[first], s.orientation_xyzw[frames]).astype(f32),
         }

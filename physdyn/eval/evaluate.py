@@ -133,7 +133,8 @@ def predict_single_steps(predictor: Any, store: StoreData, sims: np.ndarray, tru
     for sl in _chunks(B, batch_size):
         points = _model_points(store, sims[sl], predictor.num_points, rng)
         parts.append(teacher_forced(predictor, points, truth["orientation_xyzw"][sl, 0],
-                                    truth["linear_velocity"][sl, :S], truth["angular_velocity"][sl, :S]))
+                                    truth["linear_velocity"][sl, :S], truth["angular_velocity"][sl, :S],
+                                    truth["orientation_xyzw"][sl, :S]))
     return {k: np.concatenate([p[k] for p in parts], axis=0) for k in DELTA_KEYS}
 
 

@@ -16,7 +16,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from physdyn.data.windows import DELTA_KEYS, world_oriented_points
+from physdyn.data.windows import DELTA_KEYS, relative_rotation, world_oriented_points
 from physdyn.geometry.rotations import quat_multiply, rotvec_to_quat
 
 STATE_KEYS = ("com_position", "orientation_xyzw", "linear_velocity", "angular_velocity")
@@ -143,14 +143,20 @@ def rollout(
     deltas = {k: np.empty((B, steps, 3)) for k in DELTA_KEYS}
     topple = []
     state = None
+    # Models fed their orientation since step 0 (model.orientation_input) get the integrated one, composed
+    # as ``integrate`` composes it: R_{t+1} = Exp(dtheta_t) R_t, so R_t R_0^T is the product of the steps.
+    turn = np.tile([0.0, 0.0, 0.0, 1.0], (B, 1)) if getattr(model, "uses_orientation", False) else None
     for t in range(steps):
         if 1 <= t <= K:
             v, w = warm_v[:, t - 1].copy(), warm_w[:, t - 1].copy()
         fed_v[:, t], fed_w[:, t] = v, w
-        pred = model.step(feature, v, w, state)
+        pred = model.step(feature, v, w, state) if turn is None else model.step(feature, v, w, state, turn)
         state = pred.state
         for k in DELTA_KEYS:
             deltas[k][:, t] = _numpy(getattr(pred, k))
+        if turn is not None:
+            turn = quat_multiply(rotvec_to_quat(deltas["delta_rotation"][:, t]), turn)
+            turn /= np.linalg.norm(turn, axis=-1, keepdims=True)
         if pred.topple_probability is not None:
             topple.append(_numpy(pred.topple_probability))
         v = v + deltas["delta_linear_velocity"][:, t]
@@ -168,16 +174,25 @@ def rollout(
 
 
 def teacher_forced(
-    model: Any, points_body: np.ndarray, orientation0_xyzw: np.ndarray, linear_velocity: np.ndarray, angular_velocity: np.ndarray
+    model: Any, points_body: np.ndarray, orientation0_xyzw: np.ndarray, linear_velocity: np.ndarray, angular_velocity: np.ndarray,
+    orientation_xyzw: np.ndarray | None = None,
 ) -> dict[str, np.ndarray | None]:
     """Single-step (teacher-forced) predictions: the TRUE velocities fed at every step.
 
     points_body (B, N, 3) body frame; orientation0_xyzw (B, 4) at step 0; linear_velocity,
-    angular_velocity (B, S, 3) true, world frame. Returns ``delta_*`` (B, S, 3) float64 and
+    angular_velocity (B, S, 3) true, world frame; orientation_xyzw (B, S, 4) the true orientations, needed by
+    models fed their orientation since step 0. Returns ``delta_*`` (B, S, 3) float64 and
     ``topple_probability`` (B, S) (the predicted label of step t+1) or None.
     """
-    points = world_oriented_points(_numpy(points_body), _numpy(orientation0_xyzw)).astype(np.float32)
-    pred = model.predict_window(points, np.asarray(linear_velocity, np.float32), np.asarray(angular_velocity, np.float32))
+    q0 = _numpy(orientation0_xyzw)
+    points = world_oriented_points(_numpy(points_body), q0).astype(np.float32)
+    turn = None
+    if getattr(model, "uses_orientation", False):
+        if orientation_xyzw is None:
+            raise ValueError("this model is fed its orientation since step 0: pass the true orientation_xyzw")
+        turn = relative_rotation(q0, _numpy(orientation_xyzw)).astype(np.float32)
+    args = (points, np.asarray(linear_velocity, np.float32), np.asarray(angular_velocity, np.float32))
+    pred = model.predict_window(*args) if turn is None else model.predict_window(*args, orientation=turn)
     out: dict[str, np.ndarray | None] = {k: _numpy(getattr(pred, k)) for k in DELTA_KEYS}
     out["topple_probability"] = None if pred.topple_probability is None else _numpy(pred.topple_probability)
     return out

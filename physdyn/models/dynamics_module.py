@@ -23,6 +23,7 @@ from physdyn.data.normalization import Normalization
 from physdyn.data.windows import DELTA_KEYS
 from physdyn.errors import ConfigError
 from physdyn.models.losses import dynamics_loss
+from physdyn.models.priors import prior_changes
 from physdyn.registry import ENCODERS, HEADS, PREDICTORS
 
 
@@ -87,6 +88,16 @@ def adam_with_schedule(parameters, o: OptimConfig, total_steps: float, samples_p
     return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}
 
 
+def rotation_6d(q_xyzw: torch.Tensor) -> torch.Tensor:
+    """(..., 4) xyzw -> (..., 6): the first two columns of the rotation matrix, a continuous representation
+    of a rotation (Zhou et al., CVPR 2019), unlike a quaternion's sign or an axis-angle's wrap-around."""
+    q = q_xyzw / torch.linalg.vector_norm(q_xyzw, dim=-1, keepdim=True).clamp_min(1e-12)
+    x, y, z, w = q.unbind(-1)
+    col0 = torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y + z * w), 2 * (x * z - y * w)], dim=-1)
+    col1 = torch.stack([2 * (x * y - z * w), 1 - 2 * (x * x + z * z), 2 * (y * z + x * w)], dim=-1)
+    return torch.cat([col0, col1], dim=-1)
+
+
 @contextlib.contextmanager
 def _inference(module: torch.nn.Module):
     """Eval mode (batch norm uses its running statistics) and no gradients; restores the previous mode."""
@@ -118,18 +129,37 @@ class DynamicsModel(LightningModule):
         self.normalization = norm
         m = cfg.model
         self.encoder = ENCODERS.build(m.encoder.name, m.encoder.params, "model.encoder.params")
-        input_dim = 6 + int(self.encoder.out_dim)
+        input_dim = 6 + (6 if m.orientation_input else 0) + int(self.encoder.out_dim)
         self.predictor = PREDICTORS.build(m.predictor.name, m.predictor.params, "model.predictor.params", input_dim=input_dim)
         self.head = HEADS.build(m.head.name, m.head.params, "model.head.params", in_dim=int(self.predictor.out_dim))
-        self.register_buffer("change_scale", torch.tensor(norm.change_scales(), dtype=torch.float32))
-        self.register_buffer("velocity_scale", torch.tensor([norm.linear_velocity] * 3 + [norm.angular_velocity] * 3, dtype=torch.float32))
-        self.register_buffer("point_scale", torch.tensor(norm.points, dtype=torch.float32))
+        f32 = lambda x: torch.tensor(x, dtype=torch.float32)  # noqa: E731
+        self.register_buffer("change_scale", f32(norm.change_scales()))
+        self.register_buffer("change_shift", f32(norm.change_shifts()))
+        self.register_buffer("velocity_scale", f32(norm.input_scales()))
+        self.register_buffer("velocity_shift", f32(norm.input_shifts()))
+        self.register_buffer("point_scale", f32(norm.points))
         self.loss_config = cfg.loss
+        info = dict(data_info or {})
+        # The prior's step and friction are the training data's (a random-friction store: its median).
+        self.prior_dt = 1.0 / float(info.get("rate_hz", 15.0))
+        self.prior_friction = float(info.get("friction", 0.25))
+        self.prior_gravity = float(info.get("gravity", 9.81))
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        # Checkpoints from before per-channel normalisation have no shift buffers: their shift is zero.
+        state = checkpoint.get("state_dict", {})
+        for name in ("change_shift", "velocity_shift"):
+            state.setdefault(name, torch.zeros_like(getattr(self, name)))
 
     # ------------------------------------------------------------------ facts
     @property
     def predicts_topple(self) -> bool:
         return bool(self.head.predicts_topple)
+
+    @property
+    def uses_orientation(self) -> bool:
+        """Whether ``forward``/``step`` need the orientation relative to step 0 (``model.orientation_input``)."""
+        return bool(self.config.model.orientation_input)
 
     @property
     def data_info(self) -> dict:
@@ -145,45 +175,62 @@ class DynamicsModel(LightningModule):
         """points: (B, N, 3) world-oriented body frame, metres -> (B, F) shape feature."""
         return self.encoder(points / self.point_scale)
 
-    def forward(self, feature: torch.Tensor, linear_velocity: torch.Tensor, angular_velocity: torch.Tensor, state: Any = None):
-        """feature (B, F); velocities (B, T, 3) SI, world frame
+    def forward(self, feature: torch.Tensor, linear_velocity: torch.Tensor, angular_velocity: torch.Tensor, state: Any = None,
+                orientation: torch.Tensor | None = None):
+        """feature (B, F); velocities (B, T, 3) SI, world frame; orientation (B, T, 4) xyzw, the rotation since
+        the point cloud's orientation (only with ``model.orientation_input``)
         -> (changes (B, T, 12) normalised [dv, dw, dp, dtheta], topple logit (B, T) or None, state)."""
         T = linear_velocity.shape[1]
-        vel = torch.cat([linear_velocity, angular_velocity], dim=-1) / self.velocity_scale
-        inputs = torch.cat([vel, feature[:, None, :].expand(-1, T, -1)], dim=-1)
+        vel = (torch.cat([linear_velocity, angular_velocity], dim=-1) - self.velocity_shift) / self.velocity_scale
+        parts = [vel]
+        if self.uses_orientation:
+            if orientation is None:
+                raise ValueError("this model takes the orientation relative to step 0 (model.orientation_input)")
+            parts.append(rotation_6d(orientation))
+        inputs = torch.cat(parts + [feature[:, None, :].expand(-1, T, -1)], dim=-1)
         features, state = self.predictor(inputs, state)
         changes, logit = self.head(features)
+        prior = prior_changes(self.config.model.prior, linear_velocity, angular_velocity, self.prior_dt,
+                              self.prior_friction, self.prior_gravity)
+        if prior is not None:  # the network predicts the residual to the analytic prior
+            changes = changes + (prior - self.change_shift) / self.change_scale
         return changes, logit, state
 
     def _as_tensor(self, x: Any) -> torch.Tensor:
         return torch.as_tensor(np.asarray(x) if not torch.is_tensor(x) else x, dtype=torch.float32, device=self.device)
 
     def _prediction(self, changes: torch.Tensor, logit: torch.Tensor | None, state: Any) -> DynamicsPrediction:
-        si = changes * self.change_scale
+        si = changes * self.change_scale + self.change_shift
         return DynamicsPrediction(
             si[..., 0:3], si[..., 3:6], si[..., 6:9], si[..., 9:12],
             None if logit is None else torch.sigmoid(logit), state,
         )
 
-    def predict_window(self, points: Any, linear_velocity: Any, angular_velocity: Any, state: Any = None) -> DynamicsPrediction:
+    def predict_window(self, points: Any, linear_velocity: Any, angular_velocity: Any, state: Any = None,
+                       orientation: Any = None) -> DynamicsPrediction:
         """Changes at every step given the true velocities at every step (teacher forcing).
 
         points: (B, N, 3) world-oriented body frame at the first step (see
-        ``physdyn.data.windows.world_oriented_points``); velocities: (B, T, 3) SI, world frame.
+        ``physdyn.data.windows.world_oriented_points``); velocities: (B, T, 3) SI, world frame; orientation:
+        (B, T, 4) xyzw rotation since the first step (models with ``orientation_input`` only).
         Runs in eval mode without gradients; arrays or tensors in, tensors out.
         """
         with _inference(self):
             feature = self.encode(self._as_tensor(points))
-            changes, logit, state = self(feature, self._as_tensor(linear_velocity), self._as_tensor(angular_velocity), state)
+            q = None if orientation is None else self._as_tensor(orientation)
+            changes, logit, state = self(feature, self._as_tensor(linear_velocity), self._as_tensor(angular_velocity), state, q)
             return self._prediction(changes, logit, state)
 
-    def step(self, feature: torch.Tensor, linear_velocity: Any, angular_velocity: Any, state: Any = None) -> DynamicsPrediction:
-        """One roll-out step: feature (B, F) from ``encode``; velocities (B, 3) at step t; state from the
-        previous step (None at step 0) -> changes to step t+1, each (B, 3), and the new state."""
+    def step(self, feature: torch.Tensor, linear_velocity: Any, angular_velocity: Any, state: Any = None,
+             orientation: Any = None) -> DynamicsPrediction:
+        """One roll-out step: feature (B, F) from ``encode``; velocities (B, 3) at step t; orientation (B, 4)
+        the rotation since step 0 (``orientation_input`` models); state from the previous step (None at step 0)
+        -> changes to step t+1, each (B, 3), and the new state."""
         with _inference(self):
             v = self._as_tensor(linear_velocity)[:, None, :]
             w = self._as_tensor(angular_velocity)[:, None, :]
-            changes, logit, state = self(self._as_tensor(feature), v, w, state)
+            q = None if orientation is None else self._as_tensor(orientation)[:, None, :]
+            changes, logit, state = self(self._as_tensor(feature), v, w, state, q)
             pred = self._prediction(changes[:, 0], None if logit is None else logit[:, 0], state)
             return pred
 
@@ -194,15 +241,69 @@ class DynamicsModel(LightningModule):
 
     # ------------------------------------------------------------------ training
     def _targets(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-        return torch.cat([batch[k] for k in DELTA_KEYS], dim=-1) / self.change_scale
+        return (torch.cat([batch[k] for k in DELTA_KEYS], dim=-1) - self.change_shift) / self.change_scale
+
+    def _fed_velocities(self, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Velocities fed at every step of a training window, and the targets (normalised) to match them.
+
+        With ``rollout.input_noise`` the fed velocities are perturbed and the velocity targets corrected to
+        lead back to the true next velocities (v_{t+1} - fed v_t), so the model learns to recover from its own
+        drift. Returns (linear (B, T, 3), angular (B, T, 3), targets (B, T, 12))."""
+        v, w = batch["linear_velocity"], batch["angular_velocity"]
+        sigma = self.config.rollout.input_noise
+        if self.training and sigma > 0:
+            noise = torch.randn(*v.shape[:-1], 6, device=v.device, dtype=v.dtype) * sigma * self.velocity_scale
+            v, w = v + noise[..., :3], w + noise[..., 3:]
+        return v, w, self._corrected_targets(batch, v, w)
+
+    def _corrected_targets(self, batch: dict[str, torch.Tensor], v: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+        """Normalised targets whose velocity changes lead from the fed v, w to the TRUE next velocities."""
+        true_next_v = batch["linear_velocity"] + batch["delta_linear_velocity"]
+        true_next_w = batch["angular_velocity"] + batch["delta_angular_velocity"]
+        si = torch.cat([true_next_v - v, true_next_w - w, batch["delta_position"], batch["delta_rotation"]], dim=-1)
+        return (si - self.change_shift) / self.change_scale
+
+    def _closed_loop(self, feature: torch.Tensor, batch: dict[str, torch.Tensor]):
+        """A training window fed step by step, each window with probability ``rollout.feedback`` on the
+        model's own (detached) velocity predictions from step 1 on, as a roll-out feeds them."""
+        v_true, w_true = batch["linear_velocity"], batch["angular_velocity"]
+        B, T = v_true.shape[:2]
+        own = (torch.rand(B, 1, device=v_true.device) < self.config.rollout.feedback)
+        sigma = self.config.rollout.input_noise
+        orientation = batch.get("relative_orientation_xyzw") if self.uses_orientation else None
+        v, w = v_true[:, 0], w_true[:, 0]
+        fed_v, fed_w, changes, logits, state = [], [], [], [], None
+        for t in range(T):
+            if sigma > 0:
+                noise = torch.randn(B, 6, device=v.device, dtype=v.dtype) * sigma * self.velocity_scale
+                v, w = v + noise[:, :3], w + noise[:, 3:]
+            q = None if orientation is None else orientation[:, t : t + 1]
+            c, logit, state = self(feature, v[:, None], w[:, None], state, q)
+            fed_v.append(v)
+            fed_w.append(w)
+            changes.append(c)
+            logits.append(logit)
+            if t + 1 < T:
+                si = (c[:, 0].detach() * self.change_scale + self.change_shift)
+                v = torch.where(own, v + si[:, 0:3], v_true[:, t + 1])
+                w = torch.where(own, w + si[:, 3:6], w_true[:, t + 1])
+        v_fed, w_fed = torch.stack(fed_v, 1), torch.stack(fed_w, 1)
+        logit = None if logits[0] is None else torch.cat(logits, dim=1)
+        return torch.cat(changes, dim=1), logit, self._corrected_targets(batch, v_fed, w_fed)
 
     def compute_loss(self, batch: dict[str, torch.Tensor]):
         feature = self.encode(batch["points"])
-        changes, logit, _ = self(feature, batch["linear_velocity"], batch["angular_velocity"])
+        if self.training and self.config.rollout.feedback > 0:
+            changes, logit, targets = self._closed_loop(feature, batch)
+        else:
+            v, w, targets = self._fed_velocities(batch)
+            orientation = batch.get("relative_orientation_xyzw") if self.uses_orientation else None
+            changes, logit, _ = self(feature, v, w, None, orientation)
         lc = self.loss_config
         return dynamics_loss(
-            changes, self._targets(batch), logit, batch["topple_label"],
+            changes, targets, logit, batch["topple_label"],
             kind=lc.kind, weights=dict(vars(lc.weights)), eps=lc.eps, rest_threshold=lc.rest_threshold,
+            huber_delta=lc.huber_delta,
         )
 
     def _log_terms(self, prefix: str, out, batch_size: int, on_step: bool) -> None:

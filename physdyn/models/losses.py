@@ -15,6 +15,8 @@ prediction and a unit-size gradient towards 0 for any wrong one, whatever its si
 relative form finite when ``rest_threshold`` is 0.
 
 ``kind="absolute"`` (the real-world model) keeps only the numerators ||x_hat - x|| on every step.
+``kind="huber"`` applies the Huber function to that error norm (quadratic below ``huber_delta``): unlike the
+relative loss it does not let the small changes of late, slow steps weigh as much as the large early ones.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ import torch.nn.functional as F
 from physdyn.config import LossWeights
 
 QUANTITIES = ("linear_velocity", "angular_velocity", "position", "rotation")  # order in the 12 changes
+LOSS_KINDS = ("relative", "absolute", "huber")
 
 
 @dataclass
@@ -58,13 +61,14 @@ def dynamics_loss(
     weights: dict[str, float] | None = None,
     eps: float = 1e-6,
     rest_threshold: float = 1e-3,
+    huber_delta: float = 0.05,
 ) -> LossTerms:
     """changes, targets: (B, T, 12) normalised [dv, dw, dp, dtheta]; topple_logit, topple_label: (B, T).
 
     ``weights`` maps each of QUANTITIES and "topple" to its weight (default: ``LossWeights``).
     """
-    if kind not in ("relative", "absolute"):
-        raise ValueError(f"loss kind must be 'relative' or 'absolute', got '{kind}'")
+    if kind not in LOSS_KINDS:
+        raise ValueError(f"loss kind must be one of {', '.join(LOSS_KINDS)}, got '{kind}'")
     w = {**asdict(LossWeights()), **(weights or {})}  # the config's defaults, then the caller's
     terms: dict[str, torch.Tensor] = {}
     total = changes.new_zeros(())
@@ -73,6 +77,9 @@ def dynamics_loss(
         p = 1 if name == "rotation" else 2  # the paper uses L1 norms for the rotation
         if kind == "relative":
             per_step = relative_error(pred, true, p, eps, rest_threshold)
+        elif kind == "huber":
+            err = absolute_error(pred, true, p)
+            per_step = torch.where(err < huber_delta, 0.5 * err * err / huber_delta, err - 0.5 * huber_delta)
         else:
             per_step = absolute_error(pred, true, p)
         terms[name] = per_step.mean(dim=-1).mean()  # over steps, then over the batch

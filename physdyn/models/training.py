@@ -18,10 +18,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from omegaconf import OmegaConf
 
 from physdyn.config import ExperimentConfig, load_config, to_dict
+from physdyn.data.normalization import NORMALIZATION_MODES
+from physdyn.models.losses import LOSS_KINDS
+from physdyn.models.priors import PRIORS
 from physdyn.data.store import StoreData
 from physdyn.errors import ConfigError, PhysdynError
 from physdyn.registry import ENCODERS, HEADS, PREDICTORS
@@ -67,8 +71,18 @@ def validate_experiment_config(cfg: ExperimentConfig) -> ExperimentConfig:
         if not comp.name:
             raise ConfigError(f"config key 'model.{section}.name': missing; registered: {', '.join(registry.names())}")
         registry.resolve_config(comp.name, comp.params, f"model.{section}.params", name_key=f"model.{section}.name")
-    if cfg.loss.kind not in ("relative", "absolute"):
-        raise ConfigError(f"config key 'loss.kind': '{cfg.loss.kind}' is not relative or absolute")
+    choices = (("loss.kind", cfg.loss.kind, LOSS_KINDS), ("model.prior", m.prior, PRIORS),
+               ("data.normalization", cfg.data.normalization, NORMALIZATION_MODES))
+    for key, value, allowed in choices:
+        if value not in allowed:
+            raise ConfigError(f"config key '{key}': '{value}' is not one of {', '.join(allowed)}")
+    for key, value in (("rollout.feedback", cfg.rollout.feedback), ("data.first_window_fraction", cfg.data.first_window_fraction)):
+        if not 0.0 <= value <= 1.0:
+            raise ConfigError(f"config key '{key}': a probability between 0 and 1, got {value}")
+    if not 0.0 <= cfg.rollout.input_noise < 1.0:
+        raise ConfigError(f"config key 'rollout.input_noise': a std in normalised units in [0, 1), got {cfg.rollout.input_noise}")
+    if not cfg.loss.huber_delta > 0:
+        raise ConfigError(f"config key 'loss.huber_delta': must be positive, got {cfg.loss.huber_delta}")
     if cfg.optim.schedule not in ("exponential", "step", "constant"):
         raise ConfigError(f"config key 'optim.schedule': '{cfg.optim.schedule}' is not exponential, step or constant")
     if not 0 < cfg.optim.lr_min <= cfg.optim.lr:
@@ -80,6 +94,12 @@ def validate_experiment_config(cfg: ExperimentConfig) -> ExperimentConfig:
         raise ConfigError(f"config key 'data.num_workers': must be >= 0, got {cfg.data.num_workers}")
     validate_trainer_args(cfg.trainer)
     return cfg
+
+
+def _median_friction(friction: np.ndarray, default: float = 0.25) -> float:
+    """The friction the Coulomb prior assumes; imported trials may record none (NaN): the conventions' 0.25."""
+    known = friction[np.isfinite(friction)]
+    return float(np.median(known)) if len(known) else default
 
 
 def load_experiment_config(path: str | Path | None, overrides: list[str] | None = None) -> ExperimentConfig:
@@ -232,6 +252,9 @@ def fit(config: ExperimentConfig, resume: bool = False, overwrite: bool = False,
         "num_points": cfg.data.num_points,
         "category_names": list(datamodule.store.category_names),
         "train_sims": int(len(datamodule.sims.train)),
+        # for model.prior: the training data's friction (median: a random-friction store has many) and gravity
+        "friction": _median_friction(datamodule.store.friction[datamodule.sims.train]),
+        "gravity": abs(float(datamodule.store.attrs.get("physics", {}).get("gravity", -9.81))),
         "val_on_train": bool(datamodule.val_uses_train),
     }
     model = DynamicsModel(cfg, normalization, data_info)

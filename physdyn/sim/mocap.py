@@ -3,7 +3,7 @@
 A trial is what a tracker would record of a hand push (docs/real-world.md): the object rests on the floor
 for a few hundred ms, a horizontal force at the centre-of-mass height ramps up over 0.15-0.3 s and is then
 released, and the object slides (and maybe spins) to rest. It is written as the import reads it — one CSV
-per trial, header ``time,x,y,z,qx,qy,qz,qw``, 120 Hz (physics step 1/240 s, every 2nd step recorded), the
+per trial, header ``time,x,y,z,qx,qy,qz,qw``, 120 Hz (physics step 1/960 s, every 8th step recorded), the
 pose of the *mesh frame* with tracking noise and a floor offset — plus a sidecar ``<trial>.truth.npz``
 holding the simulator's noiseless poses, true velocities and the release time.
 
@@ -188,7 +188,7 @@ def simulate_trial(world, body: int, shape: TrackedShape, rng: np.random.Generat
             pos, _ = pb.getBasePositionAndOrientation(body, physicsClientId=cid)
             point = np.asarray(pos) + offset * side
             pb.applyExternalForce(body, -1, (peak * ramp * direction).tolist(), point.tolist(), pb.WORLD_FRAME, physicsClientId=cid)
-        pb.stepSimulation(physicsClientId=cid)
+        world.step(1)
         step += 1
         v, w = pb.getBaseVelocity(body, physicsClientId=cid)
         at_rest = np.linalg.norm(v) < phys.rest_linear_speed and np.linalg.norm(w) < phys.rest_angular_speed

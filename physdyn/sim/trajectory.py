@@ -81,12 +81,21 @@ def place_at_rest(world: PhysicsWorld, body: int, spec: RigidBodySpec, orientati
     return com0
 
 
+def rest_check_substeps(every: int, time_step: float, max_interval: float = 1.0 / 240.0) -> int:
+    """Physics steps per rest check: the largest divisor of ``every`` (physics steps per recorded frame)
+    that spans at most ``max_interval`` seconds, so frames still fall on a call boundary and rest is
+    judged at 240 Hz or finer (one check per 1/960 s step cost a Python round trip each)."""
+    limit = max(1, int(np.floor(max_interval / time_step + 1e-9)))
+    return max(k for k in range(1, min(every, limit) + 1) if every % k == 0)
+
+
 def record(world: PhysicsWorld, body: int, spec: RigidBodySpec, rate_hz: float, max_frames: int | None = None) -> Trajectory:
     """Step the world from the body's current state, recording at ``rate_hz`` (the current state is step
     0) until it has rested for ``physics.rest_duration`` or ``max_frames`` (default: the time cap)."""
     phys = world.physics
     cid = world.client
     every = steps_per_frame(phys.time_step, rate_hz)
+    chunk = rest_check_substeps(every, phys.time_step)
     if max_frames is None:
         max_frames = int(np.floor(phys.max_duration * rate_hz + 1e-9)) + 1
     rest_steps_needed = int(np.ceil(phys.rest_duration / phys.time_step - 1e-9))
@@ -105,11 +114,11 @@ def record(world: PhysicsWorld, body: int, spec: RigidBodySpec, rate_hz: float, 
             ang.append(w)
             if rest_steps >= rest_steps_needed or len(positions) >= max_frames:
                 break
-        pb.stepSimulation(physicsClientId=cid)
-        step += 1
+        world.step(chunk)
+        step += chunk
         v, w = pb.getBaseVelocity(body, physicsClientId=cid)
         at_rest = (v[0] ** 2 + v[1] ** 2 + v[2] ** 2 < v_rest**2) and (w[0] ** 2 + w[1] ** 2 + w[2] ** 2 < w_rest**2)
-        rest_steps = rest_steps + 1 if at_rest else 0
+        rest_steps = rest_steps + chunk if at_rest else 0
 
     # Back from the principal frame to the mesh frame: R_mesh = R_base @ A^T.
     q_principal_inv = quat_conjugate(spec.principal_quat_xyzw)
@@ -136,5 +145,5 @@ def simulate(world: PhysicsWorld, body: int, spec: RigidBodySpec, init: InitialC
     force = np.asarray(init.impulse, dtype=np.float64) / phys.time_step
     pb.applyExternalForce(body, -1, force.tolist(), list(map(float, init.impulse_point)), pb.WORLD_FRAME,
                           physicsClientId=world.client)
-    pb.stepSimulation(physicsClientId=world.client)
+    world.step(1)
     return record(world, body, spec, rate_hz)
