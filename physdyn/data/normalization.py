@@ -2,7 +2,8 @@
 
 ``mode="max"`` (the paper's): v and w (and their changes) by their largest absolute component, dp by the
 largest per-step displacement, dtheta by the largest per-step angle. ``mode="std"``: each of the 6 velocity
-inputs and 12 changes by its own mean and standard deviation. Points are always scaled by the largest point
+inputs and 12 changes by its own mean and standard deviation. ``mode="std_inputs"``: the inputs so, the
+changes by max scaling (the loss then sees the changes as with "max"). Points are always scaled by the largest point
 norm. Everything is computed on the TRAINING simulations only (the reference code also looked at validation
 and test data). The scales travel with a model in its checkpoint, so a model always de-normalises with the
 numbers it was trained with.
@@ -49,7 +50,7 @@ class Normalization:
         return cls(**out)
 
     def change_scales(self) -> np.ndarray:
-        """(12,) scales of the stacked changes [dv, dw, dp, dtheta], in that order."""
+        """(12,) scales of the stacked changes [dv, dw, dp, dtheta], in that order ("std_inputs": max scaling)."""
         if self.mode == "std":
             return np.asarray(self.change_std, dtype=np.float64)
         return np.repeat([self.linear_velocity, self.angular_velocity, self.position, self.rotation], 3)
@@ -60,12 +61,12 @@ class Normalization:
 
     def input_scales(self) -> np.ndarray:
         """(6,) scales of the fed velocities [v, w]."""
-        if self.mode == "std":
+        if self.mode in ("std", "std_inputs"):
             return np.asarray(self.input_std, dtype=np.float64)
         return np.repeat([self.linear_velocity, self.angular_velocity], 3)
 
     def input_shifts(self) -> np.ndarray:
-        return np.asarray(self.input_mean, dtype=np.float64) if self.mode == "std" else np.zeros(6)
+        return np.asarray(self.input_mean, dtype=np.float64) if self.mode in ("std", "std_inputs") else np.zeros(6)
 
 
 def _positive(value: float) -> float:
@@ -74,7 +75,7 @@ def _positive(value: float) -> float:
     return value if np.isfinite(value) and value > 0 else 1.0
 
 
-NORMALIZATION_MODES = ("max", "std")
+NORMALIZATION_MODES = ("max", "std", "std_inputs")
 
 
 def _std(x: np.ndarray) -> tuple:
@@ -94,11 +95,11 @@ def compute_normalization(store: StoreData, sims: np.ndarray, targets: FrameTarg
     frames = np.concatenate([np.arange(store.start[i], store.start[i + 1]) for i in sims])
     shapes = np.unique(store.shape_id[sims])
     per_channel = {}
-    if mode == "std":
+    if mode in ("std", "std_inputs"):
         inputs = np.concatenate([store.linear_velocity[frames], store.angular_velocity[frames]], axis=1)
         changes = np.concatenate([targets.delta_linear_velocity[frames], targets.delta_angular_velocity[frames],
                                   targets.delta_position[frames], targets.delta_rotation[frames]], axis=1)
-        per_channel = dict(mode="std", input_mean=tuple(inputs.mean(axis=0)), input_std=_std(inputs),
+        per_channel = dict(mode=mode, input_mean=tuple(inputs.mean(axis=0)), input_std=_std(inputs),
                            change_mean=tuple(changes.mean(axis=0)), change_std=_std(changes))
     return Normalization(
         **per_channel,

@@ -8,13 +8,19 @@ priors are pure functions of the velocities fed at step t, so teacher forcing an
 - ``coulomb``: as kinematic, but the horizontal velocity decelerates at mu g (Coulomb sliding of a point
   mass, the baseline of ``physdyn.eval.baselines``) and stops when it reaches zero within the step:
   with u = |v_xy| and tau = min(dt, u / (mu g)), dv_xy = -mu g tau u_hat, dp_xy = (u tau - mu g tau^2 / 2) u_hat.
+- ``planar``: as coulomb for the horizontal velocity, and the spin about the vertical slows linearly to stop
+  when the slide stops (under Coulomb friction a body sliding and spinning on a plane stops translating and
+  rotating at the same moment: Goyal, Ruina & Papadopoulos, "Planar sliding with dry friction", 1991), while
+  spin about horizontal axes (tilt, which the ground's contact damps at once unless the object topples) and
+  vertical velocity are taken away within the step. With t_stop = u / (mu g): dw_z = -w_z tau / t_stop,
+  dtheta_z = w_z tau - w_z tau^2 / (2 t_stop), dw_xy = -w_xy, dtheta_xy = 0, dv_z = -v_z, dp_z = 0.
 """
 
 from __future__ import annotations
 
 import torch
 
-PRIORS = ("none", "kinematic", "coulomb")
+PRIORS = ("none", "kinematic", "coulomb", "planar")
 
 
 def prior_changes(kind: str, linear_velocity: torch.Tensor, angular_velocity: torch.Tensor, dt: float,
@@ -28,12 +34,22 @@ def prior_changes(kind: str, linear_velocity: torch.Tensor, angular_velocity: to
     v, w = linear_velocity, angular_velocity
     dv = torch.zeros_like(v)
     dp = v * dt
-    if kind == "coulomb":
-        decel = abs(float(friction) * float(gravity))
+    dw, dtheta = torch.zeros_like(w), w * dt
+    if kind in ("coulomb", "planar"):
+        decel = max(abs(float(friction) * float(gravity)), 1e-9)
         u = v[..., :2]
         speed = torch.linalg.vector_norm(u, dim=-1, keepdim=True)
         direction = u / speed.clamp_min(1e-9)
-        tau = torch.minimum(torch.full_like(speed, dt), speed / max(decel, 1e-9))
-        dv = torch.cat([-decel * tau * direction, torch.zeros_like(speed)], dim=-1)
-        dp = torch.cat([(speed * tau - 0.5 * decel * tau * tau) * direction, v[..., 2:3] * dt], dim=-1)
-    return torch.cat([dv, torch.zeros_like(w), dp, w * dt], dim=-1)
+        tau = torch.minimum(torch.full_like(speed, dt), speed / decel)
+        zero = torch.zeros_like(speed)
+        slide = (speed * tau - 0.5 * decel * tau * tau) * direction
+        dv = torch.cat([-decel * tau * direction, zero], dim=-1)
+        dp = torch.cat([slide, v[..., 2:3] * dt], dim=-1)
+        if kind == "planar":
+            t_stop = (speed / decel).clamp_min(1e-9)
+            wz = w[..., 2:3]
+            dv = torch.cat([-decel * tau * direction, -v[..., 2:3]], dim=-1)
+            dp = torch.cat([slide, zero], dim=-1)
+            dw = torch.cat([-w[..., :2], -wz * tau / t_stop], dim=-1)
+            dtheta = torch.cat([torch.zeros_like(u), wz * tau - wz * tau * tau / (2 * t_stop)], dim=-1)
+    return torch.cat([dv, dw, dp, dtheta], dim=-1)

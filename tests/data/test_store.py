@@ -61,3 +61,20 @@ def test_data_info_summarises(tiny_store):
 
     summary = json.loads(js)
     assert summary["sims"] == 150 and summary["shapes"] == 25
+
+
+def test_contact_noise_statistic_tells_a_coarse_physics_step_from_the_conventions_one(tiny_store, tmp_path):
+    # The same pushes simulated at PyBullet's usual 1/240 s chatter: the statistic must see it, and
+    # `data info` must call that store noisy and the conventions' 1/960 s one faithful.
+    from physdyn.data.info import FAITHFUL_CHATTER, tilt_chatter
+    from physdyn.sim.generate import generate_dataset
+    from tests.conftest import tiny_data_config
+
+    coarse = tmp_path / "coarse.zarr"
+    generate_dataset(tiny_data_config("physics.time_step=0.004166666666666667"), str(coarse), progress=False)
+    fine_store, coarse_store = load_store(tiny_store), load_store(str(coarse))
+    assert fine_store.attrs["physics"]["time_step"] == pytest.approx(1 / 960)
+    fine, noisy = tilt_chatter(fine_store), tilt_chatter(coarse_store)
+    assert fine < FAITHFUL_CHATTER < noisy and noisy > 3 * fine, (fine, noisy)
+    assert "faithful" in run_cli("data", "info", tiny_store, check=True).stdout
+    assert "NOISY" in run_cli("data", "info", str(coarse), check=True).stdout

@@ -32,6 +32,7 @@ LEVERS = [
     ["model.orientation_input=true"],
     ["model.prior=kinematic"],
     ["model.prior=coulomb", "model.orientation_input=true", "data.normalization=std"],
+    ["model.prior=planar", "data.normalization=std_inputs", "rollout.feedback=1.0"],
 ]
 
 
@@ -63,10 +64,11 @@ def test_unknown_choices_are_one_line_config_errors(tiny_store, tmp_path):
         assert "\n" not in str(info.value)
 
 
-def test_coulomb_prior_alone_rolls_out_exactly_the_coulomb_sliding_baseline(quickstart_config, store):
+@pytest.mark.parametrize("prior", ["coulomb", "planar"])
+def test_sliding_prior_alone_rolls_out_exactly_the_coulomb_sliding_baseline(quickstart_config, store, prior):
     # A model whose network outputs nothing: its roll-out is its prior's, step by step. Coulomb sliding in
     # closed form (the baseline) must come out, to float32 precision, including the stop within a step.
-    model = DynamicsModel(quickstart_config("model.prior=coulomb"),
+    model = DynamicsModel(quickstart_config(f"model.prior={prior}"),
                           compute_normalization(store, np.arange(store.num_sims)), {"rate_hz": 15.0, "friction": 0.25})
     with torch.no_grad():
         model.head.linear.weight.zero_()
@@ -81,6 +83,12 @@ def test_coulomb_prior_alone_rolls_out_exactly_the_coulomb_sliding_baseline(quic
     slide = coulomb_slide(p0, q0, v0, w0, 30, 0.25, 15.0)
     np.testing.assert_allclose(ours.com_position, slide.com_position, atol=2e-5)
     np.testing.assert_allclose(ours.linear_velocity[:, 1:], slide.linear_velocity[:, 1:], atol=2e-5)
+    if prior == "planar":  # a spin given at step 0 has stopped by the step the slide stops
+        spun = rollout(model, points, q0, p0, v0, np.tile([0.3, 0.0, 5.0], (B, 1)), steps=30)
+        stopped = np.linalg.norm(slide.linear_velocity[:, -1], axis=-1) < 1e-9
+        assert stopped.all()
+        np.testing.assert_allclose(spun.angular_velocity[:, -1], 0.0, atol=1e-4)
+        np.testing.assert_allclose(spun.angular_velocity[:, 1, :2], 0.0, atol=1e-6)
 
 
 def test_priors_are_kinematics_and_coulomb_deceleration():
@@ -96,6 +104,11 @@ def test_priors_are_kinematics_and_coulomb_deceleration():
     slow = prior_changes("coulomb", torch.tensor([[0.1, 0.0, 0.0]]), w, dt=0.1, friction=0.25, gravity=10.0)
     assert torch.allclose(slow[0, 0], torch.tensor(-0.1)) and torch.allclose(slow[0, 6], torch.tensor(0.1**2 / 5.0))
     assert prior_changes("none", v, w, 0.1, 0.25) is None
+    # planar: the spin about z stops when the slide stops (t_stop = 5 / 2.5 = 2 s), tilt and v_z are removed
+    planar = prior_changes("planar", v, w, dt=0.1, friction=0.25, gravity=10.0)
+    assert torch.allclose(planar[0, 0:6], torch.tensor([-0.15, -0.2, -0.1, 0.0, -1.0, -2.0 * 0.1 / 2.0]), atol=1e-6)
+    assert torch.allclose(planar[0, 6:9], torch.cat([c[0, 6:8], torch.zeros(1)]), atol=1e-7)
+    assert torch.allclose(planar[0, 9:12], torch.tensor([0.0, 0.0, 2.0 * 0.1 - 2.0 * 0.01 / 4.0]), atol=1e-7)
 
 
 def test_rotation_6d_is_the_first_two_matrix_columns():
@@ -134,6 +147,9 @@ def test_std_normalisation_is_per_channel_and_round_trips(store):
     np.testing.assert_allclose(norm.change_std[6:9], t.delta_position[frames].std(axis=0), rtol=1e-9)
     np.testing.assert_allclose(norm.input_mean[:3], store.linear_velocity[frames].mean(axis=0), rtol=1e-9)
     assert type(norm).from_dict(norm.to_dict()) == norm
+    inputs_only = compute_normalization(store, sims, mode="std_inputs")
+    np.testing.assert_allclose(inputs_only.input_scales(), norm.input_scales())
+    np.testing.assert_allclose(inputs_only.change_scales(), compute_normalization(store, sims).change_scales())
 
 
 def test_feedback_targets_lead_from_the_fed_velocities_to_the_true_next_ones(quickstart_config, tiny_store):

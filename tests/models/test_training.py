@@ -17,7 +17,7 @@ from physdyn.config import ExperimentConfig, PretrainConfig, load_config
 from physdyn.data.datamodule import DynamicsDataModule
 from physdyn.data.normalization import Normalization
 from physdyn.data.store import load_store
-from physdyn.data.windows import world_oriented_points
+from physdyn.data.windows import relative_rotation, world_oriented_points
 from physdyn.errors import ConfigError, PhysdynError
 from physdyn.models.dynamics_module import DynamicsModel
 from physdyn.models.training import fit, load_experiment_config
@@ -71,7 +71,8 @@ def test_model_overfits_a_tiny_store(tiny_store, tmp_path):
         losses.append(loss.item())
     assert losses[0] / min(losses[-20:]) >= 10.0, (losses[0], losses[-20:])
     # the resting/padded steps were learned too: predicted changes there are small
-    pred = model.predict_window(batch["points"], batch["linear_velocity"], batch["angular_velocity"])
+    pred = model.predict_window(batch["points"], batch["linear_velocity"], batch["angular_velocity"],
+                                orientation=batch["relative_orientation_xyzw"])
     resting = ~batch["valid"]
     assert resting.any()
     assert pred.delta_position[resting].norm(dim=-1).mean() < 0.1 * dm.normalization.position
@@ -94,18 +95,19 @@ def test_checkpoint_reloads_with_config_and_normalisation(quickstart_config, tin
     assert loaded.config == cfg
     assert loaded.data_info["rate_hz"] == dm.rate_hz
     batch = next(iter(dm.val_dataloader()))
-    a = model.predict_window(batch["points"], batch["linear_velocity"], batch["angular_velocity"])
-    b = loaded.predict_window(batch["points"], batch["linear_velocity"], batch["angular_velocity"])
+    turn = batch["relative_orientation_xyzw"]  # the preset feeds the orientation since the first step
+    a = model.predict_window(batch["points"], batch["linear_velocity"], batch["angular_velocity"], orientation=turn)
+    b = loaded.predict_window(batch["points"], batch["linear_velocity"], batch["angular_velocity"], orientation=turn)
     for key in ("delta_linear_velocity", "delta_angular_velocity", "delta_position", "delta_rotation", "topple_probability"):
         assert torch.equal(getattr(a, key), getattr(b, key)), key
     loaded.train()
-    loaded.predict_window(batch["points"], batch["linear_velocity"], batch["angular_velocity"])
+    loaded.predict_window(batch["points"], batch["linear_velocity"], batch["angular_velocity"], orientation=turn)
     assert loaded.training  # predict_window runs in eval mode and restores the caller's mode
     # de-normalised outputs are in SI units: the same as normalised output x the saved scales
     feature = loaded.encode_points(batch["points"])
     with torch.no_grad():
         loaded.eval()
-        changes, _, _ = loaded(feature, batch["linear_velocity"], batch["angular_velocity"])
+        changes, _, _ = loaded(feature, batch["linear_velocity"], batch["angular_velocity"], None, turn)
     scale = torch.tensor(Normalization.from_dict(loaded.hparams["normalization"]).change_scales(), dtype=torch.float32)
     assert torch.allclose(changes[..., 6:9] * scale[6:9], b.delta_position, atol=1e-6)
 
@@ -120,11 +122,12 @@ def test_step_by_step_rollout_api_matches_the_window(quickstart_config, tiny_sto
     f = store.frames(sim)
     points = world_oriented_points(store.points[store.shape_id[sim]], store.orientation_xyzw[f.start])[None]
     v, w = store.linear_velocity[f][None, :10], store.angular_velocity[f][None, :10]
-    window = model.predict_window(points, v, w)
+    turn = relative_rotation(store.orientation_xyzw[f.start][None], store.orientation_xyzw[f][None, :10])
+    window = model.predict_window(points, v, w, orientation=turn)
     feature = model.encode_points(points)
     state, steps = None, []
     for t in range(10):
-        out = model.step(feature, v[:, t], w[:, t], state)
+        out = model.step(feature, v[:, t], w[:, t], state, turn[:, t])
         state = out.state
         steps.append(out.delta_rotation)
     assert torch.allclose(torch.stack(steps, dim=1), window.delta_rotation, atol=1e-5)
