@@ -11,6 +11,8 @@ from __future__ import annotations
 import argparse
 import time
 
+import numpy as np
+
 from physdyn.eval.evaluate import compare
 from physdyn.eval.predict import load_predictor
 
@@ -33,6 +35,10 @@ def main() -> None:
               f"position {1000 * row['position']:6.2f} mm/step   final rotation median {row['final_rotation_deg_median']:6.1f} deg")
     ratio = rows[model_name]["final_position_m_median"] / rows["coulomb_slide"]["final_position_m_median"]
     print(f"model / Coulomb sliding, median final position error: {ratio:.2f} ({'better' if ratio < 1 else 'worse'})")
+    toppled = np.asarray(result["results"][model_name]["per_sequence"]["toppled"], dtype=bool)
+    majority = max(toppled.mean(), 1 - toppled.mean())
+    print(f"topple accuracy over all {len(toppled)} sequences: {rows[model_name]['topple_accuracy']:.3f} "
+          f"(always answering the majority class: {majority:.3f})")
     print(result["verdict"])
 
 

@@ -116,12 +116,28 @@ def is_global_zero_process() -> bool:
     return all(int(os.environ.get(k, "0") or 0) == 0 for k in ("LOCAL_RANK", "NODE_RANK", "RANK"))
 
 
+RUN_ENTRIES = {"config.yaml", "best.ckpt", "last.ckpt", FINISHED, "csv", "tensorboard", "encoder.pt", "lightning_logs"}
+
+
+def looks_like_a_run(out_dir: Path) -> bool:
+    """Whether a folder was written by `physdyn fit`/`pretrain`: its config.yaml and nothing but run
+    artefacts (benchmark scripts may add their own ``*.json`` beside them)."""
+    names = {p.name for p in out_dir.iterdir()}
+    return "config.yaml" in names and all(n in RUN_ENTRIES or n.endswith((".json", ".ckpt", ".pt")) for n in names)
+
+
 def prepare_run_directory(out_dir: Path, resume: bool, overwrite: bool, what: str = "physdyn fit") -> None:
     """Refuse to reuse a run directory unless asked; only the first process of a run touches it."""
     if not is_global_zero_process():
         return
     if out_dir.exists() and any(out_dir.iterdir()):
         if overwrite:
+            if not looks_like_a_run(out_dir):  # --overwrite replaces a run, never a folder of the user's
+                example = sorted(p.name for p in out_dir.iterdir())[0]
+                raise PhysdynError(
+                    f"{out_dir} holds files that are not a physdyn run (e.g. {example}); --overwrite only replaces "
+                    f"run directories: choose another name=... or out_dir=..."
+                )
             shutil.rmtree(out_dir)
         elif not resume:
             if (out_dir / FINISHED).exists():

@@ -177,8 +177,8 @@ def test_tiny_training_run_lowers_the_rollout_error(tiny_store, tmp_path):
     """The recipe of the bundled model on the tiny store: roll-out errors on the training pushes fall."""
     lightning.seed_everything(0)
     store = load_store(tiny_store)
-    overrides = shrunk_overrides(tiny_store, tmp_path, "model.prior=coulomb", "model.orientation_input=true",
-                                 "rollout.feedback=1.0", "data.first_window_fraction=0.5",
+    overrides = shrunk_overrides(tiny_store, tmp_path, "model.prior=planar", "model.orientation_input=true",
+                                 "rollout.feedback=1.0", "data.first_window_fraction=0.5", "data.normalization=std_inputs",
                                  "model.predictor.params.hidden=64", "trainer.max_steps=250")
     cfg = load_experiment_config(QUICKSTART, overrides)
     before = evaluate(DynamicsModel(cfg, compute_normalization(store, np.flatnonzero(store.split == 0)),

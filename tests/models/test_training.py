@@ -52,10 +52,12 @@ def test_every_registered_component_combination_trains(quickstart_config, encode
 
 def test_model_overfits_a_tiny_store(tiny_store, tmp_path):
     # A fixed set of real windows from the store, the module's own loss: the loss must fall >= 10x.
+    # Teacher forcing keeps the inputs fixed (the preset's roll-out feedback feeds the model's own, moving
+    # predictions; tests/models/test_recipe.py checks that such training lowers roll-out errors).
     lightning.seed_everything(0)
     cfg = load_experiment_config(QUICKSTART, shrunk_overrides(
         tiny_store, tmp_path, "data.batch_size=8", "model.predictor.params.hidden=64",
-        "model.encoder.params.batch_norm=false", "optim.lr=1e-2",
+        "model.encoder.params.batch_norm=false", "optim.lr=1e-2", "rollout.feedback=0.0",
     ))
     dm = DynamicsDataModule(cfg.data)
     dm.setup("fit")
@@ -226,3 +228,18 @@ def test_ddp_two_cpu_processes_via_the_cli(tiny_store, tmp_path):
     ckpt = torch.load(out / "last.ckpt", map_location="cpu", weights_only=False)
     assert ckpt["global_step"] == 2
     assert "world_size=2" in proc.stderr or "distributed_backend=gloo" in proc.stderr or "GLOBAL_RANK: 1" in proc.stderr
+
+
+def test_overwrite_never_deletes_a_folder_that_is_not_a_run(quickstart_config, tmp_path):
+    # `fit ... out_dir=DIR --overwrite` with the user's own files in DIR: refused, the files intact.
+    cfg = quickstart_config(out="mine")
+    own = Path(cfg.out_dir)
+    own.mkdir(parents=True)
+    (own / "thesis.tex").write_text("years of work")
+    with pytest.raises(PhysdynError, match="not a physdyn run"):
+        fit(cfg, overwrite=True)
+    assert (own / "thesis.tex").read_text() == "years of work"
+    # a real run directory is still replaced by --overwrite
+    first = fit(quickstart_config("trainer.max_steps=1", out="run"))
+    again = fit(quickstart_config("trainer.max_steps=1", out="run"), overwrite=True)
+    assert again.out_dir == first.out_dir and (again.out_dir / "finished.json").is_file()
