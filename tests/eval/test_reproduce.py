@@ -32,6 +32,7 @@ def tiny_suite(tmp_path_factory):
     return root, outcomes, log, time.time() - started
 
 
+@pytest.mark.slow  # minutes-scale; CI runs it after the default suite
 def test_the_tiny_suite_runs_end_to_end_and_the_page_has_every_table(tiny_suite):
     root, outcomes, log, _ = tiny_suite
     assert {o.name for o in outcomes} == {r.name for r in R.build_suite()}
@@ -77,6 +78,7 @@ def test_error_curves_stop_where_too_few_sequences_remain():
     assert R.plotted_steps(curve([])) == 0
 
 
+@pytest.mark.slow  # minutes-scale; CI runs it after the default suite
 def test_a_second_invocation_skips_every_finished_run(tiny_suite):
     root, _, _, first_seconds = tiny_suite
     log: list[str] = []
@@ -91,6 +93,7 @@ def test_a_second_invocation_skips_every_finished_run(tiny_suite):
     assert "and 1 later invocation(s) that found every selected run finished" in page
 
 
+@pytest.mark.slow  # minutes-scale; CI runs it after the default suite
 def test_an_interrupted_run_is_resumed_and_only_it_is_redone(tiny_suite):
     root, _, _, _ = tiny_suite
     out = root / "out"
@@ -139,6 +142,7 @@ def test_an_incomplete_store_is_resumed(tmp_path):
     assert load_store(str(store)).num_shapes == 4
 
 
+@pytest.mark.slow  # minutes-scale; CI runs it after the default suite
 def test_cli_only_two_experiments_then_report_only(tmp_path):
     out, page = tmp_path / "out", tmp_path / "page" / "results.md"
     proc = run_cli("reproduce", "--scale", "tiny", "--out", str(out), "--only", "lstm-vs-mlp,sampling-rate",

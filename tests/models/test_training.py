@@ -214,6 +214,7 @@ def test_leave_one_category_out(quickstart_config, tiny_store):
     assert model.data_info["train_sims"] == int(np.sum((store.split == 0) & (cats != 2)))
 
 
+@pytest.mark.slow  # minutes-scale; CI runs it after the default suite
 def test_ddp_two_cpu_processes_via_the_cli(tiny_store, tmp_path):
     out = tmp_path / "ddp"
     proc = run_cli(

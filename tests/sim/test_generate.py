@@ -93,6 +93,7 @@ def test_a_different_seed_gives_different_shapes(tmp_path):
     assert not np.array_equal(load_store(tmp_path / "a.zarr").points, load_store(tmp_path / "b.zarr").points)
 
 
+@pytest.mark.slow  # minutes-scale; CI runs it after the default suite
 def test_killed_run_is_incomplete_then_resumes_to_identical_arrays(tmp_path):
     out = tmp_path / "killed.zarr"
     overrides = TINY_OVERRIDES + ["shapes_per_block=1", "families.speakers.sims_per_shape=60"]
@@ -271,6 +272,7 @@ def test_30hz_recording(tmp_path):
 
 
 @pytest.mark.ray
+@pytest.mark.slow  # minutes-scale; CI runs it after the default suite
 def test_ray_executor_gives_the_same_arrays(tmp_path):
     pytest.importorskip("ray")
     cfg = small_config()
