@@ -81,7 +81,10 @@ def place_at_rest(world: PhysicsWorld, body: int, spec: RigidBodySpec, orientati
     return com0
 
 
-def rest_check_substeps(every: int, time_step: float, max_interval: float = 1.0 / 240.0) -> int:
+REST_CHECK_INTERVAL = 1.0 / 240.0  # s: the longest stretch of physics steps between two rest checks
+
+
+def rest_check_substeps(every: int, time_step: float, max_interval: float = REST_CHECK_INTERVAL) -> int:
     """Physics steps per rest check: the largest divisor of ``every`` (physics steps per recorded frame)
     that spans at most ``max_interval`` seconds, so frames still fall on a call boundary and rest is
     judged at 240 Hz or finer (one check per 1/960 s step cost a Python round trip each)."""
