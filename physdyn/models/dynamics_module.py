@@ -240,9 +240,6 @@ class DynamicsModel(LightningModule):
             return self.encode(self._as_tensor(points))
 
     # ------------------------------------------------------------------ training
-    def _targets(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-        return (torch.cat([batch[k] for k in DELTA_KEYS], dim=-1) - self.change_shift) / self.change_scale
-
     def _fed_velocities(self, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Velocities fed at every step of a training window, and the targets (normalised) to match them.
 
@@ -250,11 +247,17 @@ class DynamicsModel(LightningModule):
         lead back to the true next velocities (v_{t+1} - fed v_t), so the model learns to recover from its own
         drift. Returns (linear (B, T, 3), angular (B, T, 3), targets (B, T, 12))."""
         v, w = batch["linear_velocity"], batch["angular_velocity"]
-        sigma = self.config.rollout.input_noise
-        if self.training and sigma > 0:
-            noise = torch.randn(*v.shape[:-1], 6, device=v.device, dtype=v.dtype) * sigma * self.velocity_scale
-            v, w = v + noise[..., :3], w + noise[..., 3:]
+        if self.training:
+            v, w = self._perturbed(v, w)
         return v, w, self._corrected_targets(batch, v, w)
+
+    def _perturbed(self, v: torch.Tensor, w: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """v, w (..., 3) plus Gaussian noise of std ``rollout.input_noise`` in normalised units (or as given)."""
+        sigma = self.config.rollout.input_noise
+        if sigma <= 0:
+            return v, w
+        noise = torch.randn(*v.shape[:-1], 6, device=v.device, dtype=v.dtype) * sigma * self.velocity_scale
+        return v + noise[..., :3], w + noise[..., 3:]
 
     def _corrected_targets(self, batch: dict[str, torch.Tensor], v: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
         """Normalised targets whose velocity changes lead from the fed v, w to the TRUE next velocities."""
@@ -269,14 +272,11 @@ class DynamicsModel(LightningModule):
         v_true, w_true = batch["linear_velocity"], batch["angular_velocity"]
         B, T = v_true.shape[:2]
         own = (torch.rand(B, 1, device=v_true.device) < self.config.rollout.feedback)
-        sigma = self.config.rollout.input_noise
         orientation = batch.get("relative_orientation_xyzw") if self.uses_orientation else None
         v, w = v_true[:, 0], w_true[:, 0]
         fed_v, fed_w, changes, logits, state = [], [], [], [], None
         for t in range(T):
-            if sigma > 0:
-                noise = torch.randn(B, 6, device=v.device, dtype=v.dtype) * sigma * self.velocity_scale
-                v, w = v + noise[:, :3], w + noise[:, 3:]
+            v, w = self._perturbed(v, w)
             q = None if orientation is None else orientation[:, t : t + 1]
             c, logit, state = self(feature, v[:, None], w[:, None], state, q)
             fed_v.append(v)

@@ -1,6 +1,6 @@
 """Analytic priors a model can correct instead of predicting each change from scratch (``model.prior``).
 
-The network then outputs the residual between the true change and the prior's, in normalised units. Both
+The network then outputs the residual between the true change and the prior's, in normalised units. The
 priors are pure functions of the velocities fed at step t, so teacher forcing and roll-outs use them alike.
 
 - ``kinematic``: constant velocities over the step: dv = 0, dw = 0, dp = v dt, dtheta = w dt. It ties the
@@ -32,24 +32,19 @@ def prior_changes(kind: str, linear_velocity: torch.Tensor, angular_velocity: to
     if kind not in PRIORS:
         raise ValueError(f"unknown prior '{kind}'; use one of {', '.join(PRIORS)}")
     v, w = linear_velocity, angular_velocity
-    dv = torch.zeros_like(v)
-    dp = v * dt
-    dw, dtheta = torch.zeros_like(w), w * dt
-    if kind in ("coulomb", "planar"):
-        decel = max(abs(float(friction) * float(gravity)), 1e-9)
-        u = v[..., :2]
-        speed = torch.linalg.vector_norm(u, dim=-1, keepdim=True)
-        direction = u / speed.clamp_min(1e-9)
-        tau = torch.minimum(torch.full_like(speed, dt), speed / decel)
-        zero = torch.zeros_like(speed)
-        slide = (speed * tau - 0.5 * decel * tau * tau) * direction
-        dv = torch.cat([-decel * tau * direction, zero], dim=-1)
-        dp = torch.cat([slide, v[..., 2:3] * dt], dim=-1)
-        if kind == "planar":
-            t_stop = (speed / decel).clamp_min(1e-9)
-            wz = w[..., 2:3]
-            dv = torch.cat([-decel * tau * direction, -v[..., 2:3]], dim=-1)
-            dp = torch.cat([slide, zero], dim=-1)
-            dw = torch.cat([-w[..., :2], -wz * tau / t_stop], dim=-1)
-            dtheta = torch.cat([torch.zeros_like(u), wz * tau - wz * tau * tau / (2 * t_stop)], dim=-1)
-    return torch.cat([dv, dw, dp, dtheta], dim=-1)
+    dv, dw, dp, dtheta = torch.zeros_like(v), torch.zeros_like(w), v * dt, w * dt
+    if kind == "kinematic":
+        return torch.cat([dv, dw, dp, dtheta], dim=-1)
+    decel = max(abs(float(friction) * float(gravity)), 1e-9)
+    u = v[..., :2]
+    speed = torch.linalg.vector_norm(u, dim=-1, keepdim=True)
+    direction = u / speed.clamp_min(1e-9)
+    tau = torch.minimum(torch.full_like(speed, dt), speed / decel)  # sliding time within the step
+    dv_xy = -decel * tau * direction
+    dp_xy = (speed * tau - 0.5 * decel * tau * tau) * direction
+    if kind == "coulomb":  # vertical motion and spin stay kinematic
+        return torch.cat([dv_xy, dv[..., 2:], dw, dp_xy, dp[..., 2:], dtheta], dim=-1)
+    t_stop = (speed / decel).clamp_min(1e-9)
+    wz = w[..., 2:3]
+    return torch.cat([dv_xy, -v[..., 2:3], -w[..., :2], -wz * tau / t_stop,
+                      dp_xy, torch.zeros_like(speed), torch.zeros_like(u), wz * tau - wz * tau * tau / (2 * t_stop)], dim=-1)
