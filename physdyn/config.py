@@ -233,7 +233,10 @@ class ModelConfig:
     encoder_init: Optional[str] = None  # encoder weights from `physdyn pretrain` (encoder.pt)
     # An analytic prior the network corrects (it predicts the residual): "none" (the paper), "kinematic"
     # (dp = v dt, dtheta = w dt, constant velocities) or "coulomb" (kinematic, with the horizontal velocity
-    # slowed by Coulomb friction mu g, mu the training data's median friction). See docs/ablations.md.
+    # slowed by Coulomb friction mu g, mu the training data's median friction), "planar" (coulomb, spin
+    # stopping with the slide, tilt damped) or "contact" (slide and spin integrated under friction over the
+    # footprint read from the point cloud; needs orientation_input). See physdyn/models/priors.py and
+    # docs/ablations.md.
     prior: str = "none"
     # Feed the object's current orientation relative to step 0 (6D rotation representation) at every step;
     # the paper feeds velocities only, so the predictor is never told how the object has turned.

@@ -17,8 +17,9 @@ from physdyn.errors import ConfigError
 from physdyn.eval.baselines import coulomb_slide
 from physdyn.eval.evaluate import evaluate, gather_truth
 from physdyn.eval.rollout import rollout, teacher_forced
-from physdyn.models.dynamics_module import DynamicsModel, rotation_6d
-from physdyn.models.priors import prior_changes
+from physdyn.models.dynamics_module import DynamicsModel
+from physdyn.models.rotations import rotation_6d
+from physdyn.models.priors import contact_changes, contact_geometry, prior_changes
 from physdyn.models.training import fit, load_experiment_config
 from tests.models.conftest import QUICKSTART, shrunk_overrides
 
@@ -33,6 +34,7 @@ LEVERS = [
     ["model.prior=kinematic"],
     ["model.prior=coulomb", "model.orientation_input=true", "data.normalization=std"],
     ["model.prior=planar", "data.normalization=std_inputs", "rollout.feedback=1.0"],
+    ["model.prior=contact", "model.orientation_input=true", "rollout.feedback=1.0", "loss.kind=huber"],
 ]
 
 
@@ -109,6 +111,52 @@ def test_priors_are_kinematics_and_coulomb_deceleration():
     assert torch.allclose(planar[0, 0:6], torch.tensor([-0.15, -0.2, -0.1, 0.0, -1.0, -2.0 * 0.1 / 2.0]), atol=1e-6)
     assert torch.allclose(planar[0, 6:9], torch.cat([c[0, 6:8], torch.zeros(1)]), atol=1e-7)
     assert torch.allclose(planar[0, 9:12], torch.tensor([0.0, 0.0, 2.0 * 0.1 - 2.0 * 0.01 / 4.0]), atol=1e-7)
+
+
+def _box_footprint(half_x: float, half_y: float, height: float, n: int = 9) -> torch.Tensor:
+    """Points of a box's bottom face (a grid) and of its top, centre of mass at the origin: (1, 2 n^2, 3)."""
+    x, y = torch.meshgrid(torch.linspace(-half_x, half_x, n), torch.linspace(-half_y, half_y, n), indexing="ij")
+    bottom = torch.stack([x.flatten(), y.flatten(), torch.full((n * n,), -height / 2)], dim=1)
+    top = bottom * torch.tensor([1.0, 1.0, -1.0])
+    return torch.cat([bottom, top])[None]
+
+
+def test_contact_prior_slides_like_coulomb_without_spin_and_couples_spin_and_slide():
+    identity = torch.tensor([[[0.0, 0.0, 0.0, 1.0]]])
+    geometry = contact_geometry(_box_footprint(0.05, 0.05, 0.1))
+    # the footprint: the bottom points, weighted equally, the centre of mass 5 cm above them
+    K = (geometry.shape[1] - 2) // 4
+    assert torch.allclose(geometry[0, 3 * K : 4 * K].sum(), torch.tensor(1.0))
+    assert torch.allclose(geometry[0, -1], torch.tensor(0.05))
+    dt, mu, g = 1.0 / 15.0, 0.25, 9.81
+
+    def roll(v, w, steps=60):
+        v, w = torch.tensor([[v]]), torch.tensor([[w]])
+        p, yaw = torch.zeros(2), 0.0
+        for _ in range(steps):
+            c = contact_changes(v, w, identity, geometry, dt, mu, g)[0, 0]
+            v, w = v + c[0:3], w + c[3:6]
+            p, yaw = p + c[6:8], yaw + float(c[11])
+        return p, yaw, v, w
+
+    # pure sliding: Coulomb's stopping distance v^2 / (2 mu g), along v, and no spin appears
+    p, yaw, v, w = roll([1.0, 0.0, 0.0], [0.0, 0.0, 0.0])
+    assert abs(float(p[0]) - 1.0 / (2 * mu * g)) < 0.01 and abs(float(p[1])) < 1e-3 and abs(yaw) < 0.01
+    assert float(v.abs().max()) < 1e-3
+    # spinning while sliding: friction is shared between the two, so the object slides farther than
+    # Coulomb's point mass, and both motions stop (Goyal, Ruina & Papadopoulos 1991)
+    p_spun, yaw_spun, v, w = roll([1.0, 0.0, 0.0], [0.0, 0.0, 8.0])
+    assert float(p_spun[0]) > float(p[0]) + 0.01 and yaw_spun > 0.1
+    assert float(v.abs().max()) < 1e-3 and float(w.abs().max()) < 0.05
+    # tilt and vertical velocity are taken away, as the planar prior does
+    c = contact_changes(torch.tensor([[[0.5, 0.0, 0.2]]]), torch.tensor([[[1.0, -2.0, 0.0]]]), identity, geometry, dt, mu, g)
+    assert torch.allclose(c[0, 0, 2:5], torch.tensor([-0.2, -1.0, 2.0]))
+
+
+def test_the_contact_prior_needs_the_orientation(tiny_store, tmp_path):
+    with pytest.raises(ConfigError, match="model.prior.*orientation_input=true"):
+        load_experiment_config(QUICKSTART, shrunk_overrides(tiny_store, tmp_path, "model.prior=contact",
+                                                            "model.orientation_input=false"))
 
 
 def test_rotation_6d_is_the_first_two_matrix_columns():
