@@ -1,8 +1,10 @@
 """The `physdyn` command. Thin: each subcommand module parses its arguments and calls the library.
 
 Every module in this package that defines ``register(subparsers)`` adds one subcommand; ``ORDER`` (an int)
-sorts them in ``--help``. A subcommand's handler returns an exit code; a ``PhysdynError`` becomes a one-line
-message and exit status 2.
+sorts them in ``--help``. A subcommand's handler returns an exit code. ``main`` is the one error boundary: a ``PhysdynError``
+or an operating-system error (a missing, unwritable or full place) becomes one line
+``physdyn CMD: error: ...`` and exit status 2; anything unexpected says so in one line with a pointer to
+``--debug``, which shows the traceback instead.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ import argparse
 import importlib
 import os
 import pkgutil
+import re
 import sys
 import warnings
 
@@ -24,6 +27,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Simulate, learn and evaluate the dynamics of rigid objects pushed on a plane.",
     )
     parser.add_argument("--version", action="version", version=f"physdyn {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show the traceback of an unexpected error")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     modules = []
     for info in pkgutil.iter_modules(__path__):
@@ -34,7 +38,13 @@ def build_parser() -> argparse.ArgumentParser:
             modules.append(module)
     for module in sorted(modules, key=lambda m: (getattr(m, "ORDER", 100), m.__name__)):
         module.register(sub)
+    for p in [parser, *sub.choices.values()]:
+        # argparse reads "-1.5e-05" as an option name; numbers in scientific notation are values here
+        p._negative_number_matcher = NEGATIVE_NUMBER
     return parser
+
+
+NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|nan)$", re.IGNORECASE)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -48,13 +58,26 @@ def main(argv: list[str] | None = None) -> int:
     except PhysdynError as exc:
         print(f"physdyn {args.command}: error: {exc}", file=sys.stderr)
         return 2
-    except BrokenPipeError:  # `physdyn components | head`: the reader left; not an error
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 0
+    except OSError as exc:  # a missing folder, no permission, a full disk: the user's to fix, not a bug
+        if args.debug or isinstance(exc, BrokenPipeError):
+            if isinstance(exc, BrokenPipeError):  # `physdyn components | head`: the reader left; not an error
+                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+                return 0
+            raise
+        where = f" ({exc.filename})" if exc.filename and str(exc.filename) not in str(exc) else ""
+        print(f"physdyn {args.command}: error: {exc.strerror or exc}{where}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt as exc:
         detail = f": {exc}" if str(exc) else ""
         print(f"physdyn {args.command}: interrupted{detail}", file=sys.stderr)
         return 130
+    except Exception as exc:  # noqa: BLE001 - the boundary: one line, the traceback on request
+        if args.debug:
+            raise
+        first = str(exc).splitlines()[0] if str(exc) else ""
+        print(f"physdyn {args.command}: unexpected error: {type(exc).__name__}: {first} "
+              f"(this is a bug; `physdyn --debug {args.command} ...` shows the traceback)", file=sys.stderr)
+        return 2
 
 
 def split_overrides(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[str]:

@@ -55,6 +55,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fps", type=float, default=15.0, help="frames per second of --render (default: %(default)s)")
     p.add_argument("--batch", metavar="REQUESTS.jsonl", help="predict every request of a JSONL file (see below)")
     p.add_argument("--out-dir", metavar="DIR", help="with --batch: folder for the output files")
+    p.add_argument("--device", default="cpu", help="where the model runs: cpu, cuda or auto (default: %(default)s)")
     p.set_defaults(func=run, parser=p)
 
 
@@ -102,7 +103,7 @@ def run_one(args: argparse.Namespace) -> int:
     with warnings.catch_warnings(record=True) as notes:
         warnings.simplefilter("always")
         body = prepare_body(args.mesh, args.scale)
-        predictor = load_predictor(args.checkpoint)
+        predictor = load_predictor(args.checkpoint, device=args.device)
         result = predictor.predict(body, lin, ang, seconds=args.seconds, orientation_xyzw=orientation,
                                    compare_sim=args.compare_sim)
     _warnings(notes)
@@ -119,46 +120,96 @@ def run_one(args: argparse.Namespace) -> int:
 
 
 def run_batch(args: argparse.Namespace) -> int:
+    """Three passes: read and check every line (a bad line is reported and skipped), roll the good ones out
+    together (``Predictor.predict_many``: one batch, meshes prepared once), write each line's files."""
+    import warnings
     from pathlib import Path
 
     from physdyn.errors import PhysdynError
-    from physdyn.eval.predict import load_predictor
+    from physdyn.eval.predict import load_predictor, write_prediction
 
     requests = Path(args.batch).expanduser()
     if not requests.is_file():
         raise PhysdynError(f"no requests file {requests}; pass a JSONL file with one request per line (see --help)")
-    lines = requests.read_text().splitlines()
+    try:
+        lines = requests.read_text().splitlines()
+    except UnicodeDecodeError:
+        raise PhysdynError(f"{requests} is not a text file; pass a JSONL file with one request per line (see --help)") from None
     out_dir = Path(args.out_dir).expanduser()
-    predictor = load_predictor(args.checkpoint)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    done, failed = 0, []
+    predictor = load_predictor(args.checkpoint, device=args.device)
+    failed: list[int] = []
+
+    def report(number: int, exc: Exception) -> None:
+        failed.append(number)
+        text = str(exc) if isinstance(exc, PhysdynError) else f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+        print(f"physdyn predict: line {number}: error: {text}", file=sys.stderr)
+
+    good, bodies = [], {}  # bodies: (mesh path, scale) -> PreparedBody, each mesh prepared once
     for number, line in enumerate(lines, start=1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
         try:
-            written = _run_request(predictor, line, number, requests.parent, out_dir, args)
-        except PhysdynError as exc:
-            failed.append(number)
-            print(f"physdyn predict: line {number}: error: {exc}", file=sys.stderr)
+            good.append(_read_request(line, number, requests.parent, out_dir, args, bodies))
         except Exception as exc:  # one broken request must not stop the others
-            failed.append(number)
-            print(f"physdyn predict: line {number}: error: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}",
-                  file=sys.stderr)
+            report(number, exc)
+    results: dict[int, dict] = {}
+    if good:
+        with warnings.catch_warnings(record=True):  # mesh notes were printed per line as each mesh was read
+            warnings.simplefilter("always")
+            try:
+                batch = predictor.predict_many([r["body"] for r in good], [r["lin_vel"] for r in good],
+                                               [r["ang_vel"] for r in good], [r["seconds"] for r in good],
+                                               [r["orientation"] for r in good], compare_sim=[r["compare_sim"] for r in good])
+                results = {r["number"]: res for r, res in zip(good, batch)}
+            except Exception:  # a request the batch cannot take: predict each on its own to name it
+                for r in good:
+                    try:
+                        results[r["number"]] = predictor.predict(r["body"], r["lin_vel"], r["ang_vel"], r["seconds"],
+                                                                 r["orientation"], compare_sim=r["compare_sim"])
+                    except Exception as exc:
+                        report(r["number"], exc)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    done = 0
+    for r in good:
+        if r["number"] not in results:
+            continue
+        try:
+            written = [write_prediction(results[r["number"]], r["out"], overwrite=args.overwrite)]
+            if r["render"] is not None:
+                from physdyn.eval.render import render_animation
+
+                written.append(render_animation(r["body"], results[r["number"]], r["render"], fps=args.fps, overwrite=args.overwrite))
+        except Exception as exc:
+            report(r["number"], exc)
         else:
             done += 1
-            print(f"line {number}: wrote {', '.join(str(p) for p in written)}")
+            print(f"line {r['number']}: wrote {', '.join(str(p) for p in written)}")
     total = done + len(failed)
-    print(f"{done} of {total} requests written to {out_dir}" + (f"; failed: line(s) {', '.join(map(str, failed))}" if failed else ""))
+    print(f"{done} of {total} requests written to {out_dir}"
+          + (f"; failed: line(s) {', '.join(map(str, sorted(failed)))}" if failed else ""))
     return 2 if failed or total == 0 else 0
 
 
-def _run_request(predictor, line: str, number: int, base, out_dir, args) -> list:
+def _inside(folder, name: str, key: str, number: int):
+    """``folder / name``, refusing a name that leads outside ``folder`` (``../x.json``, an absolute path)."""
+    from pathlib import Path
+
+    from physdyn.errors import PhysdynError
+
+    path = (folder / name).resolve()
+    if not path.is_relative_to(Path(folder).resolve()):
+        raise PhysdynError(f"\"{key}\": {name!r} leads outside --out-dir; give a name inside it")
+    return folder / name
+
+
+def _read_request(line: str, number: int, base, out_dir, args, bodies: dict) -> dict:
+    """One JSONL line checked and its mesh prepared: everything ``predict_many`` and the writers need."""
     import json
     import warnings
     from pathlib import Path
 
     from physdyn.errors import PhysdynError
-    from physdyn.eval.predict import check_output_path, check_seconds, prepare_body, write_prediction
+    from physdyn.eval.predict import as_vector, check_orientation, check_output_path, check_seconds, prepare_body
 
     try:
         req = json.loads(line)
@@ -172,27 +223,33 @@ def _run_request(predictor, line: str, number: int, base, out_dir, args) -> list
     missing = [k for k in ("mesh", "lin_vel", "ang_vel") if k not in req]
     if missing:
         raise PhysdynError(f"missing key(s) {', '.join(missing)}")
+    compare = req.get("compare_sim", args.compare_sim)
+    if not isinstance(compare, bool):
+        raise PhysdynError(f"\"compare_sim\" must be true or false, got {compare!r}")
+    scale = req.get("scale", 1.0)
+    if isinstance(scale, bool) or not isinstance(scale, (int, float)):
+        raise PhysdynError(f"\"scale\" must be a number, got {scale!r}")
     mesh = Path(str(req["mesh"])).expanduser()
     if not mesh.is_absolute() and (base / mesh).exists():
         mesh = base / mesh
-    out = out_dir / str(req.get("out") or f"line{number}_{mesh.stem}.json")
-    seconds = check_seconds(req.get("seconds", 3.0))
+    out = _inside(out_dir, str(req.get("out") or f"line{number}_{mesh.stem}.json"), "out", number)
     check_output_path(out, args.overwrite)
-    render = out_dir / str(req["render"]) if req.get("render") else None
+    render = _inside(out_dir, str(req["render"]), "render", number) if req.get("render") else None
     if render is not None:
         from physdyn.eval.render import check_animation_path
 
         check_animation_path(render, args.overwrite)
-    with warnings.catch_warnings(record=True) as notes:
-        warnings.simplefilter("always")
-        body = prepare_body(mesh, float(req.get("scale", 1.0)))
-        result = predictor.predict(body, req["lin_vel"], req["ang_vel"], seconds=seconds,
-                                   orientation_xyzw=req.get("orientation_xyzw"),
-                                   compare_sim=bool(req.get("compare_sim", args.compare_sim)))
-    _warnings(notes, f"line {number}: ")
-    written = [write_prediction(result, out, overwrite=args.overwrite)]
-    if render is not None:
-        from physdyn.eval.render import render_animation
-
-        written.append(render_animation(body, result, render, fps=args.fps, overwrite=args.overwrite))
-    return written
+    request = {
+        "number": number, "out": out, "render": render, "compare_sim": compare,
+        "lin_vel": as_vector(req["lin_vel"], "lin_vel"), "ang_vel": as_vector(req["ang_vel"], "ang_vel"),
+        "seconds": check_seconds(req.get("seconds", 3.0)),
+        "orientation": check_orientation(req.get("orientation_xyzw")),
+    }
+    key = (str(mesh.resolve()), float(scale))
+    if key not in bodies:
+        with warnings.catch_warnings(record=True) as notes:
+            warnings.simplefilter("always")
+            bodies[key] = prepare_body(mesh, float(scale))
+        _warnings(notes, f"line {number}: ")
+    request["body"] = bodies[key]
+    return request

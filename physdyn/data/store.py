@@ -8,6 +8,9 @@ store whose ``complete`` is not true.
 
 from __future__ import annotations
 
+import contextlib
+import os
+
 import json
 import shutil
 import warnings
@@ -87,6 +90,34 @@ def remove_store(url: str | Path) -> None:
         shutil.rmtree(url)
     elif Path(url).exists():
         Path(url).unlink()
+
+
+@contextlib.contextmanager
+def replacing_store(url: str | Path, overwrite: bool):
+    """Where to write a store that may replace one at ``url``: yields the path to write to.
+
+    Replacing a local physdyn store (``overwrite``) writes beside it (``.NAME.physdyn-new``) and swaps the
+    new store in only when the body of the ``with`` succeeds, so a failed or interrupted run leaves the old
+    store exactly as it was. Anything else (no store there, a remote URL) is written in place, as
+    ``StoreWriter.create`` rules."""
+    if not (overwrite and not _is_url(str(url)) and store_exists(url)):
+        yield str(url)
+        return
+    target = Path(url)
+    if not _is_physdyn_store(target):
+        raise StoreError(f"{url} exists and is not a physdyn store; refusing to delete it, choose another --out")
+    staged = target.with_name(f".{target.name}.physdyn-new")
+    remove_store(staged)  # an earlier interrupted replacement: ours to drop
+    try:
+        yield str(staged)
+    except BaseException:
+        remove_store(staged)
+        raise
+    retired = target.with_name(f".{target.name}.physdyn-old")
+    remove_store(retired)
+    os.replace(target, retired)
+    os.replace(staged, target)
+    remove_store(retired)
 
 
 def _is_physdyn_store(url: str | Path) -> bool:

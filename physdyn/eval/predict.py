@@ -37,6 +37,7 @@ DEFAULT_NUM_POINTS = 1024
 POINTS_SEED = 0  # fixed: the same mesh always gets the same cloud, so predictions are reproducible
 SIMULATOR_NAME = "pybullet"
 IN_MEMORY = "<in-memory>"
+MAX_SECONDS = 600.0  # a pushed object rests within seconds; far longer only allocates
 _CSV_SCALAR = re.compile(r"^# ([A-Za-z_]+): (.*)$")  # "# rate_hz: 15.0": a scalar key and its JSON value
 
 
@@ -71,6 +72,8 @@ def check_seconds(seconds: Any) -> float:
         raise PredictionError(f"seconds must be a number, got {seconds!r}") from None
     if not math.isfinite(s) or s <= 0:
         raise PredictionError(f"seconds must be a positive number, got {seconds!r}; e.g. --seconds 3")
+    if s > MAX_SECONDS:
+        raise PredictionError(f"seconds must be at most {MAX_SECONDS:g} (objects come to rest within a few), got {seconds!r}")
     return s
 
 
@@ -97,6 +100,38 @@ def check_output_path(path: str | Path, overwrite: bool = False, extensions: Seq
     if path.exists() and not overwrite:
         raise PredictionError(f"{what} {path} already exists; pass --overwrite (overwrite=True) to replace it")
     return path
+
+
+def _per_request(value: Any, count: int, name: str, length: int = 3) -> np.ndarray:
+    """(count, length) finite float64 from one vector for every request or one row per request."""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise PredictionError(f"{name}: expected {length} numbers or {count} rows of {length}, got {_short(value)}") from None
+    if arr.shape == (length,):
+        return np.tile(as_vector(arr, name, length), (count, 1))
+    if arr.shape != (count, length):
+        raise PredictionError(f"{name}: expected {length} numbers or {count} rows of {length}, got shape {arr.shape}")
+    for i, row in enumerate(arr):
+        as_vector(row, f"{name} of request {i + 1}", length)
+    return arr
+
+
+def _per_request_values(value: Any, count: int, name: str) -> list:
+    """One scalar for all requests, or a sequence of ``count``."""
+    if isinstance(value, (str, bytes)) or np.ndim(value) == 0:
+        return [value] * count
+    values = list(value)
+    if len(values) != count:
+        raise PredictionError(f"{name}: expected one value or {count}, got {len(values)}")
+    return values
+
+
+def _boolean(value: Any, name: str) -> bool:
+    """A real boolean: the strings "no" or "false" are not read as true."""
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    raise PredictionError(f"{name} must be true or false, got {value!r}")
 
 
 def _short(value: Any) -> str:
@@ -219,8 +254,8 @@ class Predictor:
     physics: the ``PhysicsConfig`` of ``compare_sim`` runs (default: the conventions' defaults).
     """
 
-    def __init__(self, model: Any, name: str = "model", physics: Any = None):
-        self.model = model
+    def __init__(self, model: Any, name: str = "model", physics: Any = None, device: str = "cpu"):
+        self.model = model.to(resolve_device(device)) if hasattr(model, "to") else model
         self.name = str(name)
         self.physics = physics
 
@@ -248,31 +283,77 @@ class Predictor:
         ``mesh``, ``checkpoint``; with ``compare_sim`` also ``simulated`` with the same keys from PyBullet.
         A note about the mesh (e.g. an open surface) is issued as a ``PredictionWarning``.
         """
-        from physdyn.eval.rollout import rollout
-        from physdyn.eval.metrics import TOPPLE_THRESHOLD
-        from physdyn.sim.trajectory import topple_labels
-
         v0 = as_vector(lin_vel, "linear velocity (lin_vel)")
         w0 = as_vector(ang_vel, "angular velocity (ang_vel)")
-        T = self.num_steps(seconds)
-        q0 = check_orientation(orientation_xyzw)
-        body = prepare_body(mesh, scale)
-        for note in body.notes:
-            warnings.warn(note, PredictionWarning, stacklevel=2)
-        p0 = initial_pose(body.spec, q0)
-        points = body.points_body(self.num_points)
-        out = rollout(self.model, points[None], q0[None], p0[None], v0[None], w0[None], T - 1).sequence(0)
-        probability = out["topple_probability"]
-        if probability is not None:
-            toppled = bool(np.any(probability >= TOPPLE_THRESHOLD))
-        else:  # no topple head: the 45° rule on the predicted orientations
-            toppled = bool(topple_labels(out["orientation_xyzw"])[1] >= 0)
-        result = self._result(out, probability, toppled, body, self.name)
-        if compare_sim:
-            sim = simulate_from_state(body.spec, q0, v0, w0, self.rate_hz, T, self.physics)
-            result["simulated"] = self._result(sim, sim["topple_label"].astype(np.float64), bool(sim["topple_label"].any()),
-                                               body, SIMULATOR_NAME)
-        return result
+        return self.predict_many([mesh], v0[None], w0[None], seconds, None if orientation_xyzw is None else [orientation_xyzw],
+                                 scale, compare_sim)[0]
+
+    def predict_many(self, meshes: Sequence[Any], lin_vel: Any, ang_vel: Any, seconds: Any = 3.0,
+                     orientation_xyzw: Any = None, scale: Any = 1.0, compare_sim: Any = False,
+                     chunk_size: int = 1024) -> list[dict[str, Any]]:
+        """``predict`` for R requests at once, rolled out as batches: one result per request, in order.
+
+        meshes: R file paths, ``trimesh.Trimesh`` or ``PreparedBody`` (a mesh named twice is prepared once);
+        lin_vel, ang_vel: (R, 3), or (3,) for every request; seconds, scale, compare_sim: one value or R;
+        orientation_xyzw: None (each mesh as it is), (4,) or (R, 4). Requests are grouped by length and
+        rolled out ``chunk_size`` at a time, which bounds memory. Results equal per-request ``predict`` up
+        to float32 round-off of batched arithmetic.
+        """
+        from physdyn.eval.metrics import TOPPLE_THRESHOLD
+        from physdyn.eval.rollout import rollout
+        from physdyn.sim.trajectory import topple_labels
+
+        meshes = list(meshes)
+        R = len(meshes)
+        if R == 0:
+            return []
+        if int(chunk_size) < 1:
+            raise PredictionError(f"chunk_size must be at least 1, got {chunk_size}")
+        v0 = _per_request(lin_vel, R, "linear velocity (lin_vel)")
+        w0 = _per_request(ang_vel, R, "angular velocity (ang_vel)")
+        steps = [self.num_steps(s) for s in _per_request_values(seconds, R, "seconds")]
+        scales = _per_request_values(scale, R, "scale")
+        compare = [_boolean(c, "compare_sim") for c in _per_request_values(compare_sim, R, "compare_sim")]
+        if orientation_xyzw is None:
+            q0 = np.tile(check_orientation(None), (R, 1))
+        else:
+            q0 = np.stack([check_orientation(q) for q in _per_request(orientation_xyzw, R, "orientation (x, y, z, w)", 4)])
+        bodies = self._bodies(meshes, scales)
+        p0 = np.stack([initial_pose(body.spec, q) for body, q in zip(bodies, q0)])
+        points = np.stack([body.points_body(self.num_points) for body in bodies])
+        results: list[dict[str, Any] | None] = [None] * R
+        for T in sorted(set(steps)):
+            same = np.flatnonzero(np.asarray(steps) == T)
+            for lo in range(0, len(same), int(chunk_size)):
+                idx = same[lo : lo + int(chunk_size)]
+                rolled = rollout(self.model, points[idx], q0[idx], p0[idx], v0[idx], w0[idx], T - 1)
+                for b, r in enumerate(idx):
+                    out = rolled.sequence(b)
+                    probability = out["topple_probability"]
+                    if probability is not None:
+                        toppled = bool(np.any(probability >= TOPPLE_THRESHOLD))
+                    else:  # no topple head: the 45 degree rule on the predicted orientations
+                        toppled = bool(topple_labels(out["orientation_xyzw"])[1] >= 0)
+                    results[r] = self._result(out, probability, toppled, bodies[r], self.name)
+        for r in np.flatnonzero(compare):
+            sim = simulate_from_state(bodies[r].spec, q0[r], v0[r], w0[r], self.rate_hz, steps[r], self.physics)
+            results[r]["simulated"] = self._result(sim, sim["topple_label"].astype(np.float64),
+                                                   bool(sim["topple_label"].any()), bodies[r], SIMULATOR_NAME)
+        return results  # type: ignore[return-value]
+
+    def _bodies(self, meshes: list, scales: list) -> list[PreparedBody]:
+        """Each request's ``PreparedBody``, preparing a mesh named several times (same path or object, same
+        scale) once; its notes are issued once as ``PredictionWarning``."""
+        cache: dict[Any, PreparedBody] = {}
+        bodies = []
+        for mesh, scale in zip(meshes, scales):
+            key = (str(Path(mesh).expanduser().resolve()) if isinstance(mesh, (str, os.PathLike)) else id(mesh), float(scale))
+            if key not in cache:
+                cache[key] = prepare_body(mesh, float(scale))
+                for note in cache[key].notes:
+                    warnings.warn(note, PredictionWarning, stacklevel=3)
+            bodies.append(cache[key])
+        return bodies
 
     def _result(self, states: dict, probability: Any, toppled: bool, body: PreparedBody, source: str) -> dict[str, Any]:
         T = len(states["com_position"])
@@ -291,21 +372,38 @@ class Predictor:
         }
 
 
-def load_predictor(checkpoint: Any = None, physics: Any = None) -> Predictor:
+def resolve_device(device: str) -> str:
+    """"cpu", "cuda" (or "cuda:N"), or "auto" (the GPU when torch sees one) -> a torch device name."""
+    import torch
+
+    name = str(device).lower()
+    if name == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if name.startswith("cuda"):
+        if not torch.cuda.is_available():
+            raise PhysdynError(f"device '{device}': torch sees no CUDA GPU here; use --device cpu (or auto)")
+        return name
+    if name != "cpu":
+        raise PhysdynError(f"device '{device}': use cpu, cuda or auto")
+    return name
+
+
+def load_predictor(checkpoint: Any = None, physics: Any = None, device: str = "cpu") -> Predictor:
     """A ``Predictor`` from a `physdyn fit` checkpoint path, a loaded ``DynamicsModel``, or (None) the
-    model bundled with physdyn. Raises a one-line ``PhysdynError`` for anything else."""
+    model bundled with physdyn, on ``device`` (cpu, cuda or auto). Raises a one-line ``PhysdynError`` for
+    anything else."""
     from physdyn.eval.baselines import load_checkpoint
 
     if checkpoint is None:
         if not BUNDLED_CHECKPOINT.is_file():
             raise PhysdynError(f"no bundled model in this installation ({BUNDLED_CHECKPOINT} is missing); "
                                "pass a checkpoint of `physdyn fit` with --checkpoint CKPT (load_predictor(path))")
-        return Predictor(load_checkpoint(BUNDLED_CHECKPOINT), name="bundled", physics=physics)
+        return Predictor(load_checkpoint(BUNDLED_CHECKPOINT), name="bundled", physics=physics, device=device)
     if hasattr(checkpoint, "encode_points") and hasattr(checkpoint, "step"):
-        return Predictor(checkpoint, name="model", physics=physics)
+        return Predictor(checkpoint, name="model", physics=physics, device=device)
     if not isinstance(checkpoint, (str, os.PathLike)):
         raise PhysdynError(f"checkpoint must be a path or a DynamicsModel, got {type(checkpoint).__name__}")
-    return Predictor(load_checkpoint(checkpoint), name=str(checkpoint), physics=physics)
+    return Predictor(load_checkpoint(checkpoint), name=str(checkpoint), physics=physics, device=device)
 
 
 # --------------------------------------------------------------------------------------------------

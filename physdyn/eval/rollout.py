@@ -120,6 +120,7 @@ def rollout(
     ang_vel0: np.ndarray,
     steps: int,
     warm_start_velocities: tuple[np.ndarray, np.ndarray] | None = None,
+    stepwise: bool = False,
 ) -> RolloutResult:
     """Roll a predictor out for ``steps`` transitions from the state at step 0, B sequences at once.
 
@@ -130,6 +131,8 @@ def rollout(
     fed instead of the model's own (the paper's "additional velocity steps"; K = 1 for the real-world
     model). Step 0 always receives the given true velocities. During the warm start the reported
     velocities are these observations; position and orientation are always the model's integrated ones.
+    A model with ``rollout_changes`` (``DynamicsModel``) runs the loop in torch; ``stepwise=True`` forces
+    the reference loop through ``step`` (the same numbers to float32 precision; tests compare them).
     """
     if steps < 0:
         raise ValueError(f"steps must be >= 0, got {steps}")
@@ -137,7 +140,36 @@ def rollout(
     B = q0.shape[0]
     warm_v, warm_w = _warm_start(warm_start_velocities, B)
     K = warm_v.shape[1]
-    feature = model.encode_points(world_oriented_points(_numpy(points_body), q0).astype(np.float32))
+    points = world_oriented_points(_numpy(points_body), q0).astype(np.float32)
+    if hasattr(model, "rollout_changes") and not stepwise:
+        out = model.rollout_changes(points, lin_vel0, ang_vel0, steps, warm_v if K else None, warm_w if K else None)
+        changes, fed = _numpy(out["changes"]), _numpy(out["fed"])
+        deltas = {k: changes[..., 3 * i : 3 * i + 3] for i, k in enumerate(DELTA_KEYS)}
+        fed_v, fed_w = fed[..., :3], fed[..., 3:]
+        tp = out["topple_probability"]
+        topple = [] if tp is None else list(_numpy(tp).transpose(1, 0))
+        v = _numpy(lin_vel0).reshape(B, 3) if not steps else fed_v[:, -1] + deltas["delta_linear_velocity"][:, -1]
+        w = _numpy(ang_vel0).reshape(B, 3) if not steps else fed_w[:, -1] + deltas["delta_angular_velocity"][:, -1]
+    else:
+        deltas, fed_v, fed_w, topple, v, w = _stepwise(model, points, lin_vel0, ang_vel0, steps, warm_v, warm_w)
+    states = integrate(com_position0, q0, lin_vel0, ang_vel0, deltas)
+    if K and steps:
+        # the velocity track restarts from each observation: report what was fed, then the last update
+        states["linear_velocity"] = np.concatenate([fed_v, v[:, None]], axis=1)
+        states["angular_velocity"] = np.concatenate([fed_w, w[:, None]], axis=1)
+    probability = None
+    if topple or (steps == 0 and getattr(model, "predicts_topple", False)):
+        probability = np.concatenate([np.zeros((B, 1)), np.stack(topple, axis=1) if topple else np.zeros((B, 0))], axis=1)
+    return RolloutResult(**states, topple_probability=probability, **deltas, fed_linear_velocity=fed_v,
+                         fed_angular_velocity=fed_w)
+
+
+def _stepwise(model: Any, points: np.ndarray, lin_vel0: Any, ang_vel0: Any, steps: int, warm_v: np.ndarray,
+              warm_w: np.ndarray):
+    """The reference roll-out loop, one ``model.step`` per step with numpy state between steps: the path of
+    any object with ``encode_points`` and ``step``, and the check on ``rollout_changes``."""
+    B, K = points.shape[0], warm_v.shape[1]
+    feature = model.encode_points(points)
     v, w = _numpy(lin_vel0).reshape(B, 3).copy(), _numpy(ang_vel0).reshape(B, 3).copy()
     fed_v, fed_w = np.empty((B, steps, 3)), np.empty((B, steps, 3))
     deltas = {k: np.empty((B, steps, 3)) for k in DELTA_KEYS}
@@ -161,16 +193,7 @@ def rollout(
             topple.append(_numpy(pred.topple_probability))
         v = v + deltas["delta_linear_velocity"][:, t]
         w = w + deltas["delta_angular_velocity"][:, t]
-    states = integrate(com_position0, q0, lin_vel0, ang_vel0, deltas)
-    if K and steps:
-        # the velocity track restarts from each observation: report what was fed, then the last update
-        states["linear_velocity"] = np.concatenate([fed_v, v[:, None]], axis=1)
-        states["angular_velocity"] = np.concatenate([fed_w, w[:, None]], axis=1)
-    probability = None
-    if topple or (steps == 0 and getattr(model, "predicts_topple", False)):
-        probability = np.concatenate([np.zeros((B, 1)), np.stack(topple, axis=1) if topple else np.zeros((B, 0))], axis=1)
-    return RolloutResult(**states, topple_probability=probability, **deltas, fed_linear_velocity=fed_v,
-                         fed_angular_velocity=fed_w)
+    return deltas, fed_v, fed_w, topple, v, w
 
 
 def teacher_forced(

@@ -23,9 +23,9 @@ from physdyn.data.normalization import Normalization
 from physdyn.data.windows import DELTA_KEYS
 from physdyn.errors import ConfigError
 from physdyn.models.losses import dynamics_loss
-from physdyn.models.priors import prior_changes
+from physdyn.models.priors import SHAPE_PRIORS, contact_changes, contact_geometry, prior_changes
+from physdyn.models.rotations import quat_multiply, rotation_6d, rotvec_to_quat
 from physdyn.registry import ENCODERS, HEADS, PREDICTORS
-
 
 
 @dataclass
@@ -86,16 +86,6 @@ def adam_with_schedule(parameters, o: OptimConfig, total_steps: float, samples_p
         o.schedule, step, total_steps, o.lr, o.lr_min, o.decay_rate, o.decay_samples / samples_per_step)
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, factor)
     return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step"}}
-
-
-def rotation_6d(q_xyzw: torch.Tensor) -> torch.Tensor:
-    """(..., 4) xyzw -> (..., 6): the first two columns of the rotation matrix, a continuous representation
-    of a rotation (Zhou et al., CVPR 2019), unlike a quaternion's sign or an axis-angle's wrap-around."""
-    q = q_xyzw / torch.linalg.vector_norm(q_xyzw, dim=-1, keepdim=True).clamp_min(1e-12)
-    x, y, z, w = q.unbind(-1)
-    col0 = torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y + z * w), 2 * (x * z - y * w)], dim=-1)
-    col1 = torch.stack([2 * (x * y - z * w), 1 - 2 * (x * x + z * z), 2 * (y * z + x * w)], dim=-1)
-    return torch.cat([col0, col1], dim=-1)
 
 
 @contextlib.contextmanager
@@ -171,9 +161,18 @@ class DynamicsModel(LightningModule):
         return self.config.data.num_points
 
     # ------------------------------------------------------------------ network
+    @property
+    def uses_shape_prior(self) -> bool:
+        return self.config.model.prior in SHAPE_PRIORS
+
     def encode(self, points: torch.Tensor) -> torch.Tensor:
-        """points: (B, N, 3) world-oriented body frame, metres -> (B, F) shape feature."""
-        return self.encoder(points / self.point_scale)
+        """points: (B, N, 3) world-oriented body frame, metres -> (B, F') shape code: the encoder's feature,
+        followed, for a prior that reads the shape (``model.prior=contact``), by its footprint geometry.
+        Callers treat the code as opaque and hand it back to ``forward``/``step``."""
+        feature = self.encoder(points / self.point_scale)
+        if self.uses_shape_prior:
+            feature = torch.cat([feature, contact_geometry(points)], dim=1)
+        return feature
 
     def forward(self, feature: torch.Tensor, linear_velocity: torch.Tensor, angular_velocity: torch.Tensor, state: Any = None,
                 orientation: torch.Tensor | None = None):
@@ -181,6 +180,10 @@ class DynamicsModel(LightningModule):
         the point cloud's orientation (only with ``model.orientation_input``)
         -> (changes (B, T, 12) normalised [dv, dw, dp, dtheta], topple logit (B, T) or None, state)."""
         T = linear_velocity.shape[1]
+        geometry = None
+        if self.uses_shape_prior:
+            width = int(self.encoder.out_dim)
+            feature, geometry = feature[:, :width], feature[:, width:]
         vel = (torch.cat([linear_velocity, angular_velocity], dim=-1) - self.velocity_shift) / self.velocity_scale
         parts = [vel]
         if self.uses_orientation:
@@ -190,8 +193,12 @@ class DynamicsModel(LightningModule):
         inputs = torch.cat(parts + [feature[:, None, :].expand(-1, T, -1)], dim=-1)
         features, state = self.predictor(inputs, state)
         changes, logit = self.head(features)
-        prior = prior_changes(self.config.model.prior, linear_velocity, angular_velocity, self.prior_dt,
-                              self.prior_friction, self.prior_gravity)
+        if geometry is not None:
+            prior = contact_changes(linear_velocity, angular_velocity, orientation, geometry, self.prior_dt,
+                                    self.prior_friction, self.prior_gravity)
+        else:
+            prior = prior_changes(self.config.model.prior, linear_velocity, angular_velocity, self.prior_dt,
+                                  self.prior_friction, self.prior_gravity)
         if prior is not None:  # the network predicts the residual to the analytic prior
             changes = changes + (prior - self.change_shift) / self.change_scale
         return changes, logit, state
@@ -238,6 +245,63 @@ class DynamicsModel(LightningModule):
         """``encode`` in eval mode without gradients, for roll-outs: (B, N, 3) -> (B, F)."""
         with _inference(self):
             return self.encode(self._as_tensor(points))
+
+    def rollout_changes(self, points: torch.Tensor, linear_velocity0: torch.Tensor, angular_velocity0: torch.Tensor,
+                        steps: int, warm_linear: torch.Tensor | None = None,
+                        warm_angular: torch.Tensor | None = None) -> dict[str, torch.Tensor | None]:
+        """A whole roll-out in torch, in eval and inference mode: one shape encoding, then ``steps`` calls of
+        the network on its own velocities, with no host round-trip per step.
+
+        points (B, N, 3) world-oriented body frame of step 0; linear/angular_velocity0 (B, 3) SI; warm_*
+        (B, K, 3): the true velocities of steps 1..K, fed instead of the model's own. Velocities and the
+        orientation since step 0 are carried in float64 (as ``physdyn.eval.rollout.rollout`` documents),
+        fed in float32. Returns ``changes`` (B, S, 12) float64 SI [dv, dw, dp, dtheta], ``fed`` (B, S, 6) the
+        velocities fed at each step, ``topple_probability`` (B, S) (the label of step t+1) or None.
+        """
+        was_training = self.training
+        self.eval()
+        try:
+            with torch.inference_mode():
+                return self._rollout_changes(points, linear_velocity0, angular_velocity0, steps, warm_linear, warm_angular)
+        finally:
+            if was_training:
+                self.train()
+
+    def _rollout_changes(self, points, linear_velocity0, angular_velocity0, steps, warm_linear, warm_angular):
+        device, f64 = self.device, torch.float64
+        points = torch.as_tensor(points, dtype=torch.float32, device=device)
+        B = points.shape[0]
+        feature = self.encode(points)
+        v = torch.as_tensor(linear_velocity0, dtype=f64, device=device).reshape(B, 3)
+        w = torch.as_tensor(angular_velocity0, dtype=f64, device=device).reshape(B, 3)
+        K = 0 if warm_linear is None else int(warm_linear.shape[1])
+        if K:
+            warm_linear = torch.as_tensor(warm_linear, dtype=f64, device=device)
+            warm_angular = torch.as_tensor(warm_angular, dtype=f64, device=device)
+        changes = torch.empty(B, steps, 12, dtype=f64, device=device)
+        fed = torch.empty(B, steps, 6, dtype=f64, device=device)
+        topple = torch.empty(B, steps, dtype=f64, device=device) if self.predicts_topple else None
+        turn = torch.zeros(B, 4, dtype=f64, device=device) if self.uses_orientation else None
+        if turn is not None:
+            turn[:, 3] = 1.0
+        scale, shift = self.change_scale.to(f64), self.change_shift.to(f64)
+        state = None
+        for t in range(steps):
+            if 1 <= t <= K:
+                v, w = warm_linear[:, t - 1], warm_angular[:, t - 1]
+            fed[:, t, :3], fed[:, t, 3:] = v, w
+            q = None if turn is None else turn.float()[:, None]
+            out, logit, state = self(feature, v.float()[:, None], w.float()[:, None], state, q)
+            si = out[:, 0].to(f64) * scale + shift
+            changes[:, t] = si
+            if topple is not None and logit is not None:
+                topple[:, t] = torch.sigmoid(logit[:, 0])
+            if turn is not None:  # R_{t+1} R_0^T = Exp(dtheta_t) R_t R_0^T, as the pose is integrated
+                turn = quat_multiply(rotvec_to_quat(si[:, 9:12]), turn)
+                turn = turn / torch.linalg.vector_norm(turn, dim=-1, keepdim=True)
+            v = v + si[:, 0:3]
+            w = w + si[:, 3:6]
+        return {"changes": changes, "fed": fed, "topple_probability": topple}
 
     # ------------------------------------------------------------------ training
     def _fed_velocities(self, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

@@ -25,7 +25,7 @@ from omegaconf import OmegaConf
 from physdyn.config import ExperimentConfig, load_config, to_dict
 from physdyn.data.normalization import NORMALIZATION_MODES
 from physdyn.models.losses import LOSS_KINDS
-from physdyn.models.priors import PRIORS
+from physdyn.models.priors import PRIORS, SHAPE_PRIORS
 from physdyn.data.store import StoreData
 from physdyn.errors import ConfigError, PhysdynError
 from physdyn.registry import ENCODERS, HEADS, PREDICTORS
@@ -76,6 +76,8 @@ def validate_experiment_config(cfg: ExperimentConfig) -> ExperimentConfig:
     for key, value, allowed in choices:
         if value not in allowed:
             raise ConfigError(f"config key '{key}': '{value}' is not one of {', '.join(allowed)}")
+    if m.prior in SHAPE_PRIORS and not m.orientation_input:
+        raise ConfigError(f"config key 'model.prior': '{m.prior}' turns the footprint with the object; set model.orientation_input=true")
     for key, value in (("rollout.feedback", cfg.rollout.feedback), ("data.first_window_fraction", cfg.data.first_window_fraction)):
         if not 0.0 <= value <= 1.0:
             raise ConfigError(f"config key '{key}': a probability between 0 and 1, got {value}")
@@ -151,17 +153,87 @@ def prepare_run_directory(out_dir: Path, resume: bool, overwrite: bool, what: st
     out_dir.mkdir(parents=True, exist_ok=True)
 
 
+# Keys a resumed run may change: how long it trains and how it reports, not what it learns.
+RESUMABLE_KEYS = ("trainer.max_steps", "trainer.max_epochs", "trainer.val_check_interval", "progress_bar",
+                  "data.num_workers", "ckpt_path", "out_dir")
+
+
+def _flatten(tree: Any, prefix: str = "") -> dict[str, Any]:
+    if isinstance(tree, dict):
+        out: dict[str, Any] = {}
+        for key, value in tree.items():
+            out.update(_flatten(value, f"{prefix}{key}."))
+        return out
+    return {prefix[:-1]: tree}
+
+
+def check_resumed_config(cfg: Any, saved_yaml: Path) -> None:
+    """Refuse to resume a run with a config that changes what it learns; names the keys that differ."""
+    if not saved_yaml.is_file():
+        return
+    saved = _flatten(OmegaConf.to_container(OmegaConf.load(saved_yaml)))
+    now = _flatten(to_dict(cfg))
+    changed = sorted(k for k in set(saved) | set(now)
+                     if saved.get(k) != now.get(k) and not k.startswith(RESUMABLE_KEYS))
+    if changed:
+        shown = ", ".join(f"{k} ({saved.get(k)!r} -> {now.get(k)!r})" for k in changed[:4])
+        more = f" and {len(changed) - 4} more" if len(changed) > 4 else ""
+        raise PhysdynError(
+            f"--resume: the config differs from {saved_yaml} in {shown}{more}; resume with the run's own config "
+            f"(only {', '.join(RESUMABLE_KEYS[:3])} and logging may change) or start a new run (name=...)"
+        )
+
+
+def _resumable_csv_logger(out_dir: Path, keep_until_step: int | None):
+    """Lightning's CSV logger, except that a resumed run appends to its metrics.csv (Lightning's writer
+    deletes the file on start): rows up to the checkpoint's step are kept, later ones (logged after the
+    checkpoint, before the interruption) are dropped, as training repeats those steps."""
+    import csv
+
+    from lightning.pytorch.loggers import CSVLogger
+    from lightning.pytorch.loggers.csv_logs import ExperimentWriter
+    from lightning.pytorch.loggers.logger import rank_zero_experiment
+
+    class AppendingWriter(ExperimentWriter):
+        def _check_log_dir_exists(self) -> None:
+            path = Path(self.metrics_file_path)
+            if keep_until_step is None or not path.is_file():
+                return super()._check_log_dir_exists()
+            with path.open(newline="") as file:
+                reader = csv.DictReader(file)
+                header, rows = list(reader.fieldnames or []), list(reader)
+            rows = [r for r in rows if not r.get("step") or float(r["step"]) <= keep_until_step]
+            with path.open("w", newline="") as file:
+                writer = csv.DictWriter(file, fieldnames=header)
+                writer.writeheader()
+                writer.writerows(rows)
+            self.metrics_keys = sorted(header)
+
+    class ResumableCSVLogger(CSVLogger):
+        @property
+        @rank_zero_experiment
+        def experiment(self):
+            if self._experiment is None:
+                self._fs.makedirs(self.root_dir, exist_ok=True)
+                self._experiment = AppendingWriter(log_dir=self.log_dir)
+            return self._experiment
+
+    return ResumableCSVLogger(out_dir, name="", version="csv")
+
+
 def save_config_yaml(cfg: Any, path: Path) -> None:
     if is_global_zero_process():
         path.write_text(OmegaConf.to_yaml(OmegaConf.create(to_dict(cfg))))
 
 
-def _checkpoint_hparams(path: Path) -> dict:
+def _read_checkpoint(path: Path) -> dict:
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as exc:
         raise PhysdynError(f"cannot read checkpoint {path}: {type(exc).__name__}: {exc}") from None
-    return ckpt.get("hyper_parameters", {})
+    if not isinstance(ckpt, dict):
+        raise PhysdynError(f"{path} is not a checkpoint of `physdyn fit`; pass a .ckpt it wrote")
+    return ckpt
 
 
 def _progress_bar():
@@ -201,18 +273,19 @@ def _drop_lightning_tips() -> None:
             target.addFilter(_DropLightningNoise())
 
 
-def build_trainer(cfg_trainer: dict[str, Any], out_dir: Path, callbacks: list, progress_bar: bool, loggers: bool = True):
+def build_trainer(cfg_trainer: dict[str, Any], out_dir: Path, callbacks: list, progress_bar: bool, loggers: bool = True,
+                  resumed_step: int | None = None):
     from lightning import Trainer
 
     _drop_lightning_tips()
-    from lightning.pytorch.loggers import CSVLogger, TensorBoardLogger
+    from lightning.pytorch.loggers import TensorBoardLogger
 
     validate_trainer_args(cfg_trainer)
     kwargs = {"log_every_n_steps": 10, **cfg_trainer}
     callbacks = list(callbacks) + ([_progress_bar()] if progress_bar else [])
     logger: Any = False
     if loggers:
-        logger = [CSVLogger(out_dir, name="", version="csv"), TensorBoardLogger(out_dir, name="", version="tensorboard")]
+        logger = [_resumable_csv_logger(out_dir, resumed_step), TensorBoardLogger(out_dir, name="", version="tensorboard")]
     try:
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message=".*tensorboardX.*")
@@ -253,10 +326,15 @@ def fit(config: ExperimentConfig, resume: bool = False, overwrite: bool = False,
     lightning.seed_everything(cfg.seed, workers=True, verbose=False)
     datamodule = DynamicsDataModule(cfg.data, store=store)
     datamodule.setup("fit")  # before touching out_dir: a bad store or category leaves an old run intact
+    if resume and is_global_zero_process():
+        check_resumed_config(cfg, out_dir / "config.yaml")
     prepare_run_directory(out_dir, resume=resume or ckpt_path is not None, overwrite=overwrite and ckpt_path is None)
     normalization = datamodule.normalization
+    resumed_step = None
     if ckpt_path is not None:  # keep the scales the run started with
-        saved = _checkpoint_hparams(ckpt_path).get("normalization")
+        saved_ckpt = _read_checkpoint(ckpt_path)
+        resumed_step = int(saved_ckpt.get("global_step", 0)) if resume else None
+        saved = saved_ckpt.get("hyper_parameters", {}).get("normalization")
         if saved:
             from physdyn.data.normalization import Normalization
 
@@ -287,7 +365,7 @@ def fit(config: ExperimentConfig, resume: bool = False, overwrite: bool = False,
     es = cfg.early_stopping
     if es.enabled:
         callbacks.append(EarlyStopping(monitor="val/loss", mode="min", patience=es.patience, min_delta=es.min_delta, check_on_train_epoch_end=False))
-    trainer = build_trainer(cfg.trainer, out_dir, callbacks, cfg.progress_bar)
+    trainer = build_trainer(cfg.trainer, out_dir, callbacks, cfg.progress_bar, resumed_step=resumed_step)
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*exists and is not empty.*")
         warnings.filterwarnings("ignore", message=".*smaller than the logging interval.*")

@@ -297,15 +297,32 @@ def _ray_address() -> str | None:
 def generate_dataset(cfg: DataConfig, out: str, workers: int = 1, executor: str = "process",
                      resume: bool = False, overwrite: bool = False, progress: bool = True) -> GenerationReport:
     """Generate the dataset described by ``cfg`` into the store at ``out`` (a path or fsspec URL)."""
-    from tqdm import tqdm
-
-    from physdyn.data.store import StoreWriter
+    from physdyn.data.store import replacing_store
 
     if resume and overwrite:
         raise ConfigError("--resume and --overwrite contradict each other; pass one")
     started = time.time()
     blocks, categories = plan(cfg)
     chash = config_hash(cfg)
+    if resume:
+        return _generate(cfg, out, blocks, categories, chash, workers, executor, True, progress, started)
+    with replacing_store(out, overwrite) as target:  # a failed --overwrite leaves the old store as it was
+        try:
+            report = _generate(cfg, target, blocks, categories, chash, workers, executor, False, progress, started)
+        except KeyboardInterrupt:
+            if target == str(out):
+                raise
+            raise KeyboardInterrupt(f"the store at {out} is unchanged; rerun with --overwrite to replace it") from None
+    report.out = str(out)
+    return report
+
+
+def _generate(cfg: DataConfig, out: str, blocks, categories, chash: str, workers: int, executor: str, resume: bool,
+              progress: bool, started: float) -> GenerationReport:
+    from tqdm import tqdm
+
+    from physdyn.data.store import StoreWriter
+
     if resume:
         writer = StoreWriter.resume(out, chash)
     else:
@@ -317,7 +334,7 @@ def generate_dataset(cfg: DataConfig, out: str, workers: int = 1, executor: str 
             "config_hash": chash,
             "num_blocks": len(blocks),
         }
-        writer = StoreWriter.create(out, attrs, overwrite=overwrite)
+        writer = StoreWriter.create(out, attrs)
     done = writer.done_blocks(len(blocks))
     work = [(b, tasks) for b, tasks in enumerate(blocks) if b not in done]
     sims_of = lambda tasks: sum(cfg.families[t.family].sims_per_shape for t in tasks)  # noqa: E731
@@ -381,7 +398,9 @@ def _finalize(cfg: DataConfig, writer, num_blocks: int, categories: list[str]) -
     lengths = np.concatenate([p["sims/length"] for p in parts])
     out["sims/start"] = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
     if len(out["shapes/mass"]) == 0:
-        raise ShapeError("every shape was unusable; nothing to write (see the reasons above)")
+        first = skipped[0].get("reason", "unknown") if skipped else "unknown"
+        more = f" (and {len(skipped) - 1} more shapes)" if len(skipped) > 1 else ""
+        raise ShapeError(f"every shape was unusable, nothing to write; first reason: {first}{more}")
     shape_split = assign_splits(out["shapes/category"], cfg)
     out["shapes/split"] = shape_split
     out["sims/split"] = shape_split[out["sims/shape_id"]]

@@ -258,3 +258,42 @@ def test_the_bundled_model_ships_and_predicts_a_users_mesh(tmp_path):
     assert np.isfinite(result["com_position"]).all()
     moved = np.linalg.norm(result["com_position"][-1, :2] - result["com_position"][0, :2])
     assert 0.01 < moved < 1.0  # a 1 m/s push on a plane with mu = 0.25 slides about 20 cm
+
+
+def test_predict_many_equals_each_request_predicted_alone_in_any_chunking(checkpoint, meshes):
+    predictor = load_predictor(checkpoint)
+    rng = np.random.default_rng(1)
+    R = 5
+    files = [str(meshes / ("box.obj" if i % 2 else "can.stl")) for i in range(R)]
+    lin = np.c_[rng.uniform(-1.5, 1.5, (R, 2)), np.zeros(R)]
+    ang = np.c_[np.zeros((R, 2)), rng.uniform(-3, 3, R)]
+    seconds = [1.0, 2.0, 1.0, 1.0, 2.0]  # two lengths: rolled out as two groups
+    alone = [predictor.predict(f, lin[i], ang[i], seconds[i]) for i, f in enumerate(files)]
+    for chunk in (R, 2, 1):
+        many = predictor.predict_many(files, lin, ang, seconds, chunk_size=chunk)
+        assert len(many) == R
+        for a, b in zip(many, alone):
+            assert a["com_position"].shape == b["com_position"].shape and a["mesh"] == b["mesh"]
+            for key in ("com_position", "orientation_xyzw", "linear_velocity", "angular_velocity", "topple_probability"):
+                np.testing.assert_allclose(a[key], b[key], rtol=1e-5, atol=1e-5, err_msg=key)
+    with pytest.raises(PredictionError, match="expected 3 numbers or 5 rows"):
+        predictor.predict_many(files, lin[:3], ang, 1.0)
+    with pytest.raises(PredictionError, match="compare_sim must be true or false"):
+        predictor.predict_many(files[:1], lin[:1], ang[:1], 1.0, compare_sim="no")
+    assert predictor.predict_many([], np.zeros((0, 3)), np.zeros((0, 3))) == []
+
+
+def test_batch_lines_with_a_non_boolean_or_an_escaping_path_are_refused(checkpoint, meshes, tmp_path):
+    base = {"mesh": str(meshes / "can.stl"), "lin_vel": [0.8, 0, 0], "ang_vel": [0, 0, 1], "seconds": 1}
+    lines = [dict(base, out="ok.json"), dict(base, out="no.json", compare_sim="no"), dict(base, out="../outside.json"),
+             dict(base, out="ok2.json")]
+    requests = tmp_path / "requests.jsonl"
+    requests.write_text("\n".join(json.dumps(line) for line in lines) + "\n")
+    out = tmp_path / "predictions"
+    proc = run_cli("predict", "--batch", str(requests), "--out-dir", str(out), "--checkpoint", checkpoint)
+    assert proc.returncode == 2
+    assert "line 2: error: \"compare_sim\" must be true or false" in proc.stderr
+    assert "line 3: error: \"out\": '../outside.json' leads outside --out-dir" in proc.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["ok.json", "ok2.json"]
+    assert not (tmp_path / "outside.json").exists()
+    assert "2 of 4 requests written" in proc.stdout

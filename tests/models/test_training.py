@@ -140,11 +140,20 @@ def test_resume_continues_and_finished_runs_are_protected(quickstart_config):
     first = fit(quickstart_config("trainer.max_steps=2"))
     with pytest.raises(PhysdynError, match="finished run.*--overwrite"):
         fit(quickstart_config("trainer.max_steps=2"))
-    resumed = fit(quickstart_config("trainer.max_steps=5"), resume=True)
+    metrics = first.out_dir / "csv" / "metrics.csv"
+    steps_before = sorted({int(float(r["step"])) for r in csv.DictReader(metrics.open()) if r["train/loss_step"]})
+    assert steps_before  # log_every_n_steps=1: one training row per step
+    with pytest.raises(PhysdynError, match=r"--resume: .*model\.prior \('planar' -> 'coulomb'\)") as info:
+        fit(quickstart_config("trainer.max_steps=5", "model.prior=coulomb"), resume=True)
+    assert "\n" not in str(info.value)
+    resumed = fit(quickstart_config("trainer.max_steps=5"), resume=True)  # training longer may change
     assert resumed.out_dir == first.out_dir
     assert json.loads((first.out_dir / "finished.json").read_text())["global_step"] == 5
     ckpt = torch.load(resumed.last_checkpoint, map_location="cpu", weights_only=False)
     assert ckpt["global_step"] == 5
+    steps_after = sorted({int(float(r["step"])) for r in csv.DictReader(metrics.open()) if r["train/loss_step"]})
+    assert steps_after[: len(steps_before)] == steps_before  # the history before the resume is kept
+    assert max(steps_after) > max(steps_before)
     again = fit(quickstart_config("trainer.max_steps=1"), overwrite=True)
     assert json.loads((again.out_dir / "finished.json").read_text())["global_step"] == 1
 

@@ -234,6 +234,32 @@ def test_mesh_folder_with_bad_files_skips_and_reports_them(tmp_path):
     assert 0.05 < d.points.max() - d.points.min() < 0.2  # scaled from centimetres to metres
 
 
+def test_a_failed_overwrite_leaves_the_old_store_exactly_as_it_was(tmp_path):
+    import hashlib
+
+    def digest(folder: Path) -> str:
+        h = hashlib.sha256()
+        for f in sorted(folder.rglob("*")):
+            h.update(str(f.relative_to(folder)).encode())
+            if f.is_file():
+                h.update(f.read_bytes())
+        return h.hexdigest()
+
+    out = tmp_path / "good.zarr"
+    generate_dataset(small_config(), str(out), progress=False)
+    before = digest(out)
+    junk = tmp_path / "junk"
+    junk.mkdir()
+    (junk / "broken.obj").write_text("v 0 0 0\nthis is not a mesh\n")
+    proc = run_cli("simulate", "--config", "configs/data/meshes.yaml", "--out", str(out), "--overwrite", "--quiet",
+                   f"meshes.dir={junk}")
+    assert proc.returncode == 2
+    last = proc.stderr.strip().splitlines()[-1]
+    assert "every shape was unusable" in last and "broken.obj" in last, proc.stderr
+    assert digest(out) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["good.zarr", "junk"]  # no staged leftovers
+
+
 def test_mesh_folder_not_set_is_a_clear_error(tmp_path):
     proc = run_cli("simulate", "--config", "configs/data/meshes.yaml", "--out", str(tmp_path / "m.zarr"))
     assert proc.returncode == 2 and "meshes.dir" in proc.stderr
