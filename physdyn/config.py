@@ -7,9 +7,11 @@ relative to the file) to compose presets from smaller files.
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Type, TypeVar
+from typing import Any, Callable, Dict, List, Optional, Type, TypeVar
 
 import yaml
 from omegaconf import DictConfig, OmegaConf
@@ -114,6 +116,93 @@ class DataConfig:
 
 
 # --------------------------------------------------------------------------------------------------
+# Value rules: what the schema's types cannot say (ranges, finiteness, relations between keys)
+# --------------------------------------------------------------------------------------------------
+def _within(low: float | None = None, high: float | None = None, low_open: bool = False) -> Callable[[Any], bool]:
+    def check(x: Any) -> bool:
+        if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
+            return False
+        if low is not None and (x <= low if low_open else x < low):
+            return False
+        return high is None or x <= high
+    return check
+
+
+POSITIVE = (_within(0, low_open=True), "a positive finite number")
+NON_NEGATIVE = (_within(0), "a finite number >= 0")
+FRACTION = (_within(0, 1), "a fraction between 0 and 1")
+COUNT = (_within(1), "a whole number >= 1")
+
+# schema -> field -> (check, what is allowed). Walked by ``check_values`` after every load.
+VALUE_RULES: dict[type, dict[str, tuple[Callable[[Any], bool], str]]] = {
+    PhysicsConfig: {
+        "time_step": (_within(1e-5, 0.1), "seconds per physics step, 1e-5 to 0.1 (the conventions: 1/960)"),
+        "gravity": (_within(-100, -0.1), "negative m/s^2 (z is up), e.g. -9.81"),
+        "lateral_friction_object": NON_NEGATIVE, "lateral_friction_ground": NON_NEGATIVE,
+        "rolling_friction_object": NON_NEGATIVE, "rolling_friction_ground": NON_NEGATIVE,
+        "spinning_friction": NON_NEGATIVE, "linear_damping": NON_NEGATIVE, "angular_damping": NON_NEGATIVE,
+        "restitution": FRACTION, "rest_linear_speed": POSITIVE, "rest_angular_speed": POSITIVE,
+        "rest_duration": NON_NEGATIVE, "max_duration": (_within(0, 600, low_open=True), "seconds, above 0 and at most 600"),
+    },
+    ImpulseConfig: {
+        "speed_min": (_within(0, 20, low_open=True), "m/s, above 0 and at most 20 (a hard push is a few m/s)"),
+        "speed_max": (_within(0, 20, low_open=True), "m/s, above 0 and at most 20 (a hard push is a few m/s)"),
+        "height_fraction": FRACTION, "lateral_fraction": FRACTION,
+    },
+    FrictionConfig: {"min": POSITIVE, "max": POSITIVE},
+    MassConfig: {"density": POSITIVE, "voxel_pitch": POSITIVE},
+    FamilySpec: {"shapes": COUNT, "sims_per_shape": COUNT},
+    MeshFolderConfig: {"scale": POSITIVE},
+    SplitConfig: {"test_fraction": (_within(0, 0.9), "a fraction between 0 and 0.9"),
+                  "val_fraction": (_within(0, 0.9), "a fraction between 0 and 0.9")},
+    DataConfig: {"rate_hz": (_within(0, 1000, low_open=True), "recordings per second, above 0 and at most 1000"),
+                 "num_points": (_within(16, 100_000), "points per cloud, 16 to 100000"),
+                 "oversample": COUNT, "shapes_per_block": COUNT},
+}
+
+
+def _data_relations(cfg: "DataConfig") -> tuple[str, str] | None:
+    """Rules between keys of a data config: (key, message) of the first broken one."""
+    steps = 1.0 / (cfg.rate_hz * cfg.physics.time_step)
+    if abs(steps - round(steps)) > 1e-6 * steps or round(steps) < 1:
+        return ("rate_hz", f"{cfg.rate_hz:g} Hz does not divide the physics rate {1 / cfg.physics.time_step:g} Hz "
+                           f"(physics.time_step); use a divisor, e.g. 15, 30 or 60")
+    if cfg.impulse.speed_min > cfg.impulse.speed_max:
+        return ("impulse.speed_min", f"{cfg.impulse.speed_min:g} is above impulse.speed_max {cfg.impulse.speed_max:g}")
+    if cfg.friction.min > cfg.friction.max:
+        return ("friction.min", f"{cfg.friction.min:g} is above friction.max {cfg.friction.max:g}")
+    if cfg.split.test_fraction + cfg.split.val_fraction >= 1.0:
+        return ("split.val_fraction", "test_fraction + val_fraction must leave shapes to train on (sum below 1)")
+    return None
+
+
+RELATION_RULES: dict[type, Callable[[Any], tuple[str, str] | None]] = {DataConfig: _data_relations}
+
+
+def check_values(config: Any, prefix: str = "") -> None:
+    """Apply ``VALUE_RULES`` and ``RELATION_RULES`` to a loaded config and its nested configs; the first
+    broken rule is a one-line ConfigError naming the key, the value and what is allowed."""
+    rules = VALUE_RULES.get(type(config), {})
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        key = f"{prefix}{f.name}"
+        if f.name in rules:
+            check, allowed = rules[f.name]
+            if not check(value):
+                raise ConfigError(f"config key '{key}': {value!r} is not allowed; expected {allowed}")
+        if dataclasses.is_dataclass(value):
+            check_values(value, f"{key}.")
+        elif isinstance(value, dict):
+            for name, item in value.items():
+                if dataclasses.is_dataclass(item):
+                    check_values(item, f"{key}.{name}.")
+    relation = RELATION_RULES.get(type(config))
+    broken = relation(config) if relation else None
+    if broken:
+        raise ConfigError(f"config key '{prefix}{broken[0]}': {broken[1]}")
+
+
+# --------------------------------------------------------------------------------------------------
 # Loading
 # --------------------------------------------------------------------------------------------------
 def _read_yaml(path: Path, seen: tuple[Path, ...] = ()) -> DictConfig:
@@ -124,6 +213,8 @@ def _read_yaml(path: Path, seen: tuple[Path, ...] = ()) -> DictConfig:
         raise ConfigError(f"config {path}: 'defaults' includes itself in a cycle")
     try:
         raw = yaml.safe_load(path.read_text())
+    except UnicodeDecodeError:
+        raise ConfigError(f"config {path} is not a text file; pass a YAML file to --config") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark is not None else ""
@@ -154,9 +245,11 @@ def load_config(schema: Type[S], path: str | Path | None = None, overrides: List
         _drop_params_of_switched_components(merged, overrides)
         if overrides:
             merged = OmegaConf.merge(merged, *[OmegaConf.from_dotlist([item]) for item in overrides])
-        return OmegaConf.to_object(merged)  # type: ignore[return-value]
+        config = OmegaConf.to_object(merged)
     except OmegaConfBaseException as exc:
         raise ConfigError(omegaconf_message(exc)) from None
+    check_values(config)
+    return config  # type: ignore[return-value]
 
 
 def _drop_params_of_switched_components(merged: DictConfig, overrides: List[str]) -> None:

@@ -29,3 +29,22 @@ def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
+
+
+def check_writable(path: str | Path, what: str = "output") -> None:
+    """Before long work: refuse an output whose place cannot be written (a parent that is a file, a folder
+    without write permission), as a one-line ``PhysdynError`` naming the place."""
+    from physdyn.errors import PhysdynError
+
+    path = Path(path).expanduser()
+    existing = path
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if existing != path and not existing.is_dir():
+        raise PhysdynError(f"{what} {path}: {existing} is a file, not a folder; choose another place")
+    folder = existing if existing.is_dir() else existing.parent
+    try:  # a real probe: permission bits say nothing for root, or for read-only and virtual file systems
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as exc:
+        raise PhysdynError(f"{what} {path}: cannot write in {folder} ({exc.strerror}); choose another place") from None

@@ -64,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
                 os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
                 return 0
             raise
-        where = f" ({exc.filename})" if exc.filename and str(exc.filename) not in str(exc) else ""
+        where = f": {exc.filename}" if exc.filename else ""
         print(f"physdyn {args.command}: error: {exc.strerror or exc}{where}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:

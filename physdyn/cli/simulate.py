@@ -32,13 +32,28 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run, parser=p)
 
 
+def clamp_workers(workers: int, local: bool = True) -> int:
+    """At least 1; for local processes at most the machine's cores (more only queue up and multiply
+    memory), with a note. A Ray cluster may have more cores than this machine."""
+    from physdyn.errors import ConfigError
+
+    if workers < 1:
+        raise ConfigError(f"--workers must be at least 1, got {workers}")
+    cores = os.cpu_count() or 1
+    if local and workers > cores:
+        print(f"note: --workers {workers} is more than this machine's {cores} cores; using {cores}")
+        return cores
+    return workers
+
+
 def run(args: argparse.Namespace) -> int:
     from physdyn.cli import split_overrides
     from physdyn.config import DataConfig, load_config
     from physdyn.sim.generate import generate_dataset
 
     cfg = load_config(DataConfig, args.config, split_overrides(args.parser, args))
-    report = generate_dataset(cfg, args.out, workers=args.workers, executor=args.executor,
+    workers = clamp_workers(args.workers, local=args.executor == "process")
+    report = generate_dataset(cfg, args.out, workers=workers, executor=args.executor,
                               resume=args.resume, overwrite=args.overwrite, progress=not args.quiet)
     rate = report.num_sims / max(report.seconds, 1e-9)
     print(f"wrote {report.out}: {report.num_shapes} shapes, {report.num_sims} simulations, "

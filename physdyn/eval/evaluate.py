@@ -191,6 +191,21 @@ def _groups(toppled: np.ndarray) -> dict[str, np.ndarray]:
     return {"non_toppling": ~toppled, "toppling": toppled, "all": np.ones_like(toppled)}
 
 
+def check_compatible(predictor: Any, store: StoreData, sims: np.ndarray, warm_start: int) -> None:
+    """Refuse an evaluation whose numbers would mean nothing: a model trained at another recording rate
+    (its steps are another length of time), or a warm start as long as the sequences."""
+    info = getattr(predictor, "data_info", None)
+    trained = (info or {}).get("rate_hz") if isinstance(info, dict) else None
+    if trained and abs(float(trained) - float(store.rate_hz)) > 1e-6:
+        raise EvaluationError(f"the model was trained at {float(trained):g} Hz and {store.url} is recorded at "
+                              f"{float(store.rate_hz):g} Hz; evaluate on a store of the model's rate")
+    if warm_start and not isinstance(predictor, Baseline):
+        shortest = int(np.min(store.start[sims + 1] - store.start[sims]))
+        if warm_start >= shortest - 1:
+            raise EvaluationError(f"--warm-start {warm_start} leaves nothing to predict: the shortest sequence has "
+                                  f"{shortest} steps; use fewer than {shortest - 1}")
+
+
 def evaluate(model_or_baseline: Any, store: StoreData | str, split: str = "test", warm_start: int = 0,
              categories: Sequence[str] | None = None, batch_size: int = 256, seed: int = 0) -> dict[str, Any]:
     """All metrics of one predictor on a split of a store.
@@ -210,6 +225,7 @@ def evaluate(model_or_baseline: Any, store: StoreData | str, split: str = "test"
     store = load_store(store) if isinstance(store, str) else store
     predictor = resolve_predictor(model_or_baseline)
     sims = select_sequences(store, split, categories)
+    check_compatible(predictor, store, sims, warm_start)
     truth = gather_truth(store, sims)
     pred = predict_rollouts(predictor, store, sims, truth, warm_start, batch_size, seed)
     single = predict_single_steps(predictor, store, sims, truth, batch_size, seed)

@@ -24,7 +24,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from physdyn.errors import PhysdynError
-from physdyn.files import atomic_output
+from physdyn.files import atomic_output, check_writable
 
 BUNDLED_CHECKPOINT = Path(__file__).resolve().parents[1] / "assets" / "bundled.ckpt"
 OUTPUT_EXTENSIONS = (".json", ".npz", ".csv")
@@ -37,6 +37,8 @@ DEFAULT_NUM_POINTS = 1024
 POINTS_SEED = 0  # fixed: the same mesh always gets the same cloud, so predictions are reproducible
 SIMULATOR_NAME = "pybullet"
 IN_MEMORY = "<in-memory>"
+MAX_LINEAR_SPEED = 50.0  # m/s; training pushes are 0.5-2 m/s
+MAX_ANGULAR_SPEED = 500.0  # rad/s
 MAX_SECONDS = 600.0  # a pushed object rests within seconds; far longer only allocates
 _CSV_SCALAR = re.compile(r"^# ([A-Za-z_]+): (.*)$")  # "# rate_hz: 15.0": a scalar key and its JSON value
 
@@ -99,6 +101,7 @@ def check_output_path(path: str | Path, overwrite: bool = False, extensions: Seq
         raise PredictionError(f"{what} {path} is a folder; pass a file name such as {path / ('prediction' + extensions[0])}")
     if path.exists() and not overwrite:
         raise PredictionError(f"{what} {path} already exists; pass --overwrite (overwrite=True) to replace it")
+    check_writable(path, what)
     return path
 
 
@@ -311,6 +314,12 @@ class Predictor:
             raise PredictionError(f"chunk_size must be at least 1, got {chunk_size}")
         v0 = _per_request(lin_vel, R, "linear velocity (lin_vel)")
         w0 = _per_request(ang_vel, R, "angular velocity (ang_vel)")
+        for values, name, limit, unit in ((v0, "linear velocity (lin_vel)", MAX_LINEAR_SPEED, "m/s"),
+                                          (w0, "angular velocity (ang_vel)", MAX_ANGULAR_SPEED, "rad/s")):
+            fastest = float(np.linalg.norm(values, axis=1).max())
+            if fastest > limit:
+                raise PredictionError(f"{name}: {fastest:g} {unit} is beyond any push a tabletop object survives "
+                                      f"(at most {limit:g} {unit}); check the units")
         steps = [self.num_steps(s) for s in _per_request_values(seconds, R, "seconds")]
         scales = _per_request_values(scale, R, "scale")
         compare = [_boolean(c, "compare_sim") for c in _per_request_values(compare_sim, R, "compare_sim")]

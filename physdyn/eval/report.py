@@ -108,7 +108,13 @@ REPORT_FILES = {"metrics": "metrics.json", "report": "report.md",
 
 
 def check_report_target(out_dir: str | Path, overwrite: bool = False) -> None:
-    """Refuse to replace an earlier report unless asked: call before spending time on an evaluation."""
+    """Refuse to replace an earlier report unless asked, or a place that cannot be written: call before
+    spending time on an evaluation."""
+    from physdyn.files import check_writable
+
+    if Path(out_dir).is_file():
+        raise PhysdynError(f"--out {out_dir} is a file; pass a folder for the report")
+    check_writable(out_dir, "--out")
     existing = [name for name in REPORT_FILES.values() if (Path(out_dir) / name).exists()]
     if existing and not overwrite:
         raise PhysdynError(f"{out_dir} already holds a report ({existing[0]}); pass --overwrite to replace it or choose another --out")

@@ -403,7 +403,10 @@ class DynamicsModel(LightningModule):
         path = Path(path)
         if not path.is_file():
             raise ConfigError(f"config key 'model.encoder_init': no file {path}; run `physdyn pretrain` first")
-        saved = torch.load(path, map_location="cpu", weights_only=False)
+        try:
+            saved = torch.load(path, map_location="cpu", weights_only=False)
+        except Exception:
+            raise ConfigError(f"config key 'model.encoder_init': {path} is not an encoder file of `physdyn pretrain`") from None
         name = saved.get("encoder") if isinstance(saved, dict) else None
         if name != self.config.model.encoder.name:
             raise ConfigError(
