@@ -143,7 +143,7 @@ def test_resume_continues_and_finished_runs_are_protected(quickstart_config):
     metrics = first.out_dir / "csv" / "metrics.csv"
     steps_before = sorted({int(float(r["step"])) for r in csv.DictReader(metrics.open()) if r["train/loss_step"]})
     assert steps_before  # log_every_n_steps=1: one training row per step
-    with pytest.raises(PhysdynError, match=r"--resume: .*model\.prior \('planar' -> 'coulomb'\)") as info:
+    with pytest.raises(PhysdynError, match=r"--resume: .*model\.prior \('contact' -> 'coulomb'\)") as info:
         fit(quickstart_config("trainer.max_steps=5", "model.prior=coulomb"), resume=True)
     assert "\n" not in str(info.value)
     resumed = fit(quickstart_config("trainer.max_steps=5"), resume=True)  # training longer may change
