@@ -44,6 +44,9 @@ def select_sims(store: StoreData, split: int, categories: list[str] = (), exclud
     return np.flatnonzero(keep)
 
 
+MAX_BATCH_BYTES = 4 * 2**30  # one batch's arrays; beyond it a typo (window=100000) would exhaust the memory
+
+
 class SimIndexDataset(Dataset):
     """Items are (simulation, start) pairs; start -1 means "draw a random start"."""
 
@@ -150,6 +153,19 @@ class DynamicsDataModule(LightningDataModule):
         if cfg.num_points is not None and not 1 <= cfg.num_points <= n_avail:
             raise ConfigError(
                 f"config key 'data.num_points': {cfg.num_points} is not between 1 and the store's {n_avail} points"
+            )
+        longest = int(np.max(np.diff(self.store.start)))
+        if cfg.window >= longest:
+            raise ConfigError(
+                f"config key 'data.window': {cfg.window} steps is not shorter than the longest simulation in "
+                f"{cfg.store} ({longest} steps); use fewer (e.g. {int(round(self.store.rate_hz))} = 1 s)"
+            )
+        points = cfg.num_points or n_avail
+        batch_bytes = cfg.batch_size * (cfg.window * 4 * 64 + points * 3 * 4)  # ~64 floats per step, the cloud
+        if batch_bytes > MAX_BATCH_BYTES:
+            raise ConfigError(
+                f"config key 'data.batch_size': a batch of {cfg.batch_size} windows of {cfg.window} steps and "
+                f"{points} points needs about {batch_bytes / 2**30:.1f} GiB; lower data.batch_size or data.window"
             )
         pick = lambda split: select_sims(self.store, split, cfg.categories, cfg.exclude_categories)  # noqa: E731
         self.sims = SplitInfo(pick(0), pick(1), pick(2))

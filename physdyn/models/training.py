@@ -328,7 +328,6 @@ def fit(config: ExperimentConfig, resume: bool = False, overwrite: bool = False,
     datamodule.setup("fit")  # before touching out_dir: a bad store or category leaves an old run intact
     if resume and is_global_zero_process():
         check_resumed_config(cfg, out_dir / "config.yaml")
-    prepare_run_directory(out_dir, resume=resume or ckpt_path is not None, overwrite=overwrite and ckpt_path is None)
     normalization = datamodule.normalization
     resumed_step = None
     if ckpt_path is not None:  # keep the scales the run started with
@@ -354,6 +353,8 @@ def fit(config: ExperimentConfig, resume: bool = False, overwrite: bool = False,
     model = DynamicsModel(cfg, normalization, data_info)
     if cfg.model.encoder_init and ckpt_path is None:
         model.load_encoder_weights(cfg.model.encoder_init)
+    # Only now, with every input checked, is the run directory touched (created, or replaced on --overwrite).
+    prepare_run_directory(out_dir, resume=resume or ckpt_path is not None, overwrite=overwrite and ckpt_path is None)
     out_dir.mkdir(parents=True, exist_ok=True)
     save_config_yaml(cfg, out_dir / "config.yaml")
 

@@ -1,0 +1,194 @@
+"""Bad input across every command: exit status 2, one clear line naming the problem, nothing damaged.
+
+One table, run in-process through ``physdyn.cli.main`` (a fresh process per case would cost minutes).
+Each case runs in a workspace holding what a user already made — a finished store, a finished run, a report,
+a prediction, a folder of their own files — and the workspace must be byte for byte the same afterwards:
+no file changed, none added (no half-written output), none removed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from physdyn.cli import main
+from physdyn.errors import PhysdynError
+from tests.models.conftest import QUICKSTART, shrunk_overrides
+
+DATA = "configs/data/quickstart.yaml"
+
+
+@pytest.fixture(scope="module")
+def workspace(tiny_store, tmp_path_factory):
+    """What a user already has: a store, a finished run, a report, a prediction, their own files."""
+    from physdyn.models.training import fit, load_experiment_config
+
+    ws = tmp_path_factory.mktemp("workspace")
+    shutil.copytree(tiny_store, ws / "store.zarr")
+    run = fit(load_experiment_config(QUICKSTART, shrunk_overrides(str(ws / "store.zarr"), ws / "run", "trainer.max_steps=2")))
+    assert run.last_checkpoint is not None
+    (ws / "report").mkdir()
+    (ws / "report" / "metrics.json").write_text("{}")
+    (ws / "taken.json").write_text("{}")
+    (ws / "thesis").mkdir()
+    (ws / "thesis" / "chapter1.tex").write_text("months of work")
+    (ws / "thesis" / "config.yaml").write_text("mine: true\n")
+    (ws / "binary.bin").write_bytes(bytes(range(256)) * 4)
+    (ws / "bad.yaml").write_text("data: [unclosed\n")
+    (ws / "notes.ckpt").write_text("not a checkpoint")
+    torch.save({"weights": [1, 2, 3]}, ws / "dict.ckpt")
+    (ws / "garbage.obj").write_text("this is not a mesh\nv 1 2\nf 9 9 9\n")
+    import trimesh
+
+    trimesh.creation.box((0.08, 0.12, 0.2)).export(ws / "box.obj")
+    (ws / "corrupt.zarr").mkdir()
+    (ws / "corrupt.zarr" / "zarr.json").write_text("{ not json")
+    (ws / "requests.jsonl").write_text(json.dumps({"mesh": "box.obj", "lin_vel": [1, 0, 0], "ang_vel": [0, 0, 1]}) + "\n")
+    return ws
+
+
+def digest(folder: Path) -> dict[str, str]:
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else "dir"
+            for p in sorted(folder.rglob("*"))}
+
+
+RUN_OVERRIDES = ["data.store={ws}/store.zarr", "out_dir={ws}/new_run", "progress_bar=false", "trainer.max_steps=1"]
+PREDICT = ["predict", "{ws}/box.obj", "--lin-vel", "1", "0", "0", "--ang-vel", "0", "0", "1", "--checkpoint", "{ws}/run/last.ckpt"]
+TEST = ["test", "--checkpoint", "{ws}/run/last.ckpt", "--data", "{ws}/store.zarr"]
+
+# (id, argv, text the one error line must contain)
+CASES = [
+    # simulate: files, schema values, relations, flags, ownership
+    ("sim-missing-config", ["simulate", "--config", "{ws}/nope.yaml", "--out", "{ws}/new.zarr"], "config file not found"),
+    ("sim-binary-config", ["simulate", "--config", "{ws}/binary.bin", "--out", "{ws}/new.zarr"], "not a text file"),
+    ("sim-malformed-config", ["simulate", "--config", "{ws}/bad.yaml", "--out", "{ws}/new.zarr"], "not valid YAML"),
+    ("sim-unknown-key", ["simulate", "--config", DATA, "--out", "{ws}/new.zarr", "no_such_key=1"], "no_such_key"),
+    ("sim-rate-zero", ["simulate", "--config", DATA, "--out", "{ws}/new.zarr", "rate_hz=0"], "'rate_hz'"),
+    ("sim-rate-not-dividing", ["simulate", "--config", DATA, "--out", "{ws}/new.zarr", "rate_hz=17"], "does not divide"),
+    ("sim-time-step-zero", ["simulate", "--config", DATA, "--out", "{ws}/new.zarr", "physics.time_step=0"], "physics.time_step"),
+    ("sim-time-step-nan", ["simulate", "--config", DATA, "--out", "{ws}/new.zarr", "physics.time_step=nan"], "physics.time_step"),
+    ("sim-gravity-up", ["simulate", "--config", DATA, "--out", "{ws}/new.zarr", "physics.gravity=9.81"], "physics.gravity"),
+    ("sim-gravity-inf", ["simulate", "--config", DATA, "--out", "{ws}/new.zarr", "physics.gravity=-inf"], "physics.gravity"),
+    ("sim-negative-friction", ["simulate", "--config", DATA, "--out", "{ws}/new.zarr", "physics.lateral_friction_object=-1"],
+     "physics.lateral_friction_object"),
+    ("sim-negative-duration", ["simulate", "--config", DATA, "--out", "{ws}/new.zarr", "physics.max_duration=-1"], "physics.max_duration"),
+    ("sim-restitution", ["simulate", "--config", DATA, "--out", "{ws}/new.zarr", "physics.restitution=2"], "physics.restitution"),
+    ("sim-absurd-push", ["simulate", "--config", DATA, "--out", "{ws}/new.zarr", "impulse.speed_max=1000"], "impulse.speed_max"),
+    ("sim-push-range", ["simulate", "--config", DATA, "--out", "{ws}/new.zarr", "impulse.speed_min=3"], "impulse.speed_min"),
+    ("sim-friction-range", ["simulate", "--config", DATA, "--out", "{ws}/new.zarr", "friction.min=0.9"], "friction.min"),
+    ("sim-no-shapes", ["simulate", "--config", DATA, "--out", "{ws}/new.zarr", "families.bottles.shapes=0"], "families.bottles.shapes"),
+    ("sim-split", ["simulate", "--config", DATA, "--out", "{ws}/new.zarr", "split.test_fraction=0.95"], "split.test_fraction"),
+    ("sim-split-sum", ["simulate", "--config", DATA, "--out", "{ws}/new.zarr", "split.test_fraction=0.6", "split.val_fraction=0.5"],
+     "split.val_fraction"),
+    ("sim-points", ["simulate", "--config", DATA, "--out", "{ws}/new.zarr", "num_points=2"], "num_points"),
+    ("sim-density", ["simulate", "--config", DATA, "--out", "{ws}/new.zarr", "mass.density=0"], "mass.density"),
+    ("sim-workers-zero", ["simulate", "--config", DATA, "--out", "{ws}/new.zarr", "--workers", "0"], "--workers"),
+    ("sim-workers-negative", ["simulate", "--config", DATA, "--out", "{ws}/new.zarr", "--workers", "-3"], "--workers"),
+    ("sim-existing-store", ["simulate", "--config", DATA, "--out", "{ws}/store.zarr"], "already exists"),
+    ("sim-resume-complete", ["simulate", "--config", DATA, "--out", "{ws}/store.zarr", "--resume"], "already complete"),
+    ("sim-overwrite-user-folder", ["simulate", "--config", DATA, "--out", "{ws}/thesis", "--overwrite"], "not a physdyn store"),
+    ("sim-resume-and-overwrite", ["simulate", "--config", DATA, "--out", "{ws}/store.zarr", "--resume", "--overwrite"], "contradict"),
+    ("sim-meshes-unset", ["simulate", "--config", "configs/data/meshes.yaml", "--out", "{ws}/new.zarr"], "meshes.dir"),
+    # fit: config, store, ownership, checkpoints
+    ("fit-missing-config", ["fit", "--config", "{ws}/nope.yaml"], "config file not found"),
+    ("fit-binary-config", ["fit", "--config", "{ws}/binary.bin"], "not a text file"),
+    ("fit-missing-store", ["fit", "--config", str(QUICKSTART), "data.store={ws}/nope.zarr", "out_dir={ws}/new_run"], "nope.zarr"),
+    ("fit-corrupt-store", ["fit", "--config", str(QUICKSTART), "data.store={ws}/corrupt.zarr", "out_dir={ws}/new_run"], "corrupt.zarr"),
+    ("fit-window-zero", ["fit", "--config", str(QUICKSTART), *RUN_OVERRIDES, "data.window=0"], "data.window"),
+    ("fit-window-huge", ["fit", "--config", str(QUICKSTART), *RUN_OVERRIDES, "data.window=100000"], "data.window"),
+    ("fit-unknown-prior", ["fit", "--config", str(QUICKSTART), *RUN_OVERRIDES, "model.prior=newton"], "model.prior"),
+    ("fit-contact-without-orientation", ["fit", "--config", str(QUICKSTART), *RUN_OVERRIDES, "model.orientation_input=false"],
+     "model.prior"),
+    ("fit-loss-kind", ["fit", "--config", str(QUICKSTART), *RUN_OVERRIDES, "loss.kind=l2"], "loss.kind"),
+    ("fit-feedback", ["fit", "--config", str(QUICKSTART), *RUN_OVERRIDES, "rollout.feedback=1.5"], "rollout.feedback"),
+    ("fit-lr-min", ["fit", "--config", str(QUICKSTART), *RUN_OVERRIDES, "optim.lr_min=1"], "optim.lr_min"),
+    ("fit-trainer-typo", ["fit", "--config", str(QUICKSTART), *RUN_OVERRIDES, "trainer.max_epoch=3"], "trainer.max_epoch"),
+    ("fit-encoder-init-text", ["fit", "--config", str(QUICKSTART), *RUN_OVERRIDES, "model.encoder_init={ws}/notes.ckpt"],
+     "model.encoder_init"),
+    ("fit-ckpt-missing", ["fit", "--config", str(QUICKSTART), *RUN_OVERRIDES, "ckpt_path={ws}/nope.ckpt"], "ckpt_path"),
+    ("fit-ckpt-text", ["fit", "--config", str(QUICKSTART), *RUN_OVERRIDES, "ckpt_path={ws}/notes.ckpt"], "notes.ckpt"),
+    ("fit-overwrite-user-folder", ["fit", "--config", str(QUICKSTART), "data.store={ws}/store.zarr", "out_dir={ws}/thesis",
+                                   "--overwrite"], "not a physdyn run"),
+    ("fit-finished-run", ["fit", "--config", str(QUICKSTART), *shrunk_overrides("{ws}/store.zarr", "{ws}/run", "trainer.max_steps=2")],
+     "finished run"),
+    ("fit-resume-changed", ["fit", "--config", str(QUICKSTART), *shrunk_overrides("{ws}/store.zarr", "{ws}/run", "trainer.max_steps=4"),
+                            "model.prior=planar", "--resume"], "model.prior"),
+    ("fit-resume-nothing", ["fit", "--config", str(QUICKSTART), *RUN_OVERRIDES, "--resume"], "--resume"),
+    # test: checkpoint, outputs, options
+    ("test-missing-ckpt", ["test", "--checkpoint", "{ws}/nope.ckpt", "--out", "{ws}/rep"], "nope.ckpt"),
+    ("test-text-ckpt", ["test", "--checkpoint", "{ws}/notes.ckpt", "--out", "{ws}/rep"], "not a PyTorch checkpoint"),
+    ("test-dict-ckpt", ["test", "--checkpoint", "{ws}/dict.ckpt", "--out", "{ws}/rep"], "not a physdyn DynamicsModel checkpoint"),
+    ("test-out-is-file", [*TEST, "--out", "{ws}/taken.json"], "is a file"),
+    ("test-out-under-file", [*TEST, "--out", "{ws}/taken.json/rep"], "is a file"),
+    ("test-existing-report", [*TEST, "--out", "{ws}/report"], "already holds a report"),
+    ("test-warm-start-negative", [*TEST, "--out", "{ws}/rep", "--warm-start", "-1"], "--warm-start"),
+    ("test-warm-start-too-long", [*TEST, "--out", "{ws}/rep", "--warm-start", "100000"], "--warm-start"),
+    ("test-missing-store", ["test", "--checkpoint", "{ws}/run/last.ckpt", "--data", "{ws}/nope.zarr", "--out", "{ws}/rep"], "nope.zarr"),
+    ("test-unknown-category", [*TEST, "--out", "{ws}/rep", "--categories", "unicorns"], "unicorns"),
+    # predict: mesh, numbers, outputs, batch
+    ("predict-missing-mesh", ["predict", "{ws}/nope.obj", "--lin-vel", "1", "0", "0", "--ang-vel", "0", "0", "1"], "nope.obj"),
+    ("predict-garbage-mesh", ["predict", "{ws}/garbage.obj", "--lin-vel", "1", "0", "0", "--ang-vel", "0", "0", "1"], "garbage.obj"),
+    ("predict-nan-velocity", ["predict", "{ws}/box.obj", "--lin-vel", "nan", "0", "0", "--ang-vel", "0", "0", "1"], "finite"),
+    ("predict-absurd-velocity", [*PREDICT[:2], "--lin-vel", "1e6", "0", "0", "--ang-vel", "0", "0", "1"], "check the units"),
+    ("predict-absurd-spin", [*PREDICT[:2], "--lin-vel", "1", "0", "0", "--ang-vel", "0", "0", "1e5"], "check the units"),
+    ("predict-seconds-zero", [*PREDICT, "--seconds", "0"], "seconds"),
+    ("predict-seconds-huge", [*PREDICT, "--seconds", "1e12"], "seconds"),
+    ("predict-zero-quaternion", [*PREDICT, "--orientation", "0", "0", "0", "0"], "zero quaternion"),
+    ("predict-scale-zero", [*PREDICT, "--scale", "0"], "scale"),
+    ("predict-bad-extension", [*PREDICT, "--out", "{ws}/out.txt"], "unsupported extension"),
+    ("predict-existing-output", [*PREDICT, "--out", "{ws}/taken.json"], "already exists"),
+    ("predict-output-under-file", [*PREDICT, "--out", "{ws}/taken.json/x.json"], "is a file"),
+    ("predict-dict-checkpoint", [*PREDICT[:-1], "{ws}/dict.ckpt"], "not a physdyn DynamicsModel checkpoint"),
+    ("predict-device", [*PREDICT, "--device", "quantum"], "device"),
+    ("predict-batch-missing", ["predict", "--batch", "{ws}/nope.jsonl", "--out-dir", "{ws}/preds"], "nope.jsonl"),
+    ("predict-batch-binary", ["predict", "--batch", "{ws}/binary.bin", "--out-dir", "{ws}/preds"], "not a text file"),
+    # data info: stores
+    ("info-missing-store", ["data", "info", "{ws}/nope.zarr"], "nope.zarr"),
+    ("info-corrupt-store", ["data", "info", "{ws}/corrupt.zarr"], "corrupt.zarr"),
+    ("info-not-a-store", ["data", "info", "{ws}/thesis"], "thesis"),
+    ("info-unknown-protocol", ["data", "info", "nosuchproto://bucket/x.zarr"], "nosuchproto"),
+]
+
+
+@pytest.mark.parametrize("argv, expected", [pytest.param(a, e, id=i) for i, a, e in CASES])
+def test_bad_input_is_one_clear_line_and_damages_nothing(workspace, capsys, argv, expected):
+    args = [a.replace("{ws}", str(workspace)) for a in argv]
+    before = digest(workspace)
+    capsys.readouterr()
+    try:
+        status = main(args)
+    except SystemExit as exc:  # argparse's own usage errors
+        status = exc.code
+    err = capsys.readouterr().err.strip()
+    assert status == 2, f"exit {status}: {err}"
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1, err
+    assert lines[0].startswith("physdyn ") and "error" in lines[0], lines[0]
+    assert expected in lines[0], lines[0]
+    assert "Traceback" not in err and "unexpected error" not in err, err
+    assert digest(workspace) == before, "the workspace changed"
+
+
+def test_there_are_at_least_sixty_cases():
+    assert len(CASES) >= 60 and len({c[0] for c in CASES}) == len(CASES)
+
+
+def test_the_python_api_refuses_the_same_values(workspace):
+    from physdyn.config import DataConfig, load_config
+    from physdyn.eval.predict import PredictionError, load_predictor
+
+    with pytest.raises(PhysdynError, match="rate_hz"):
+        load_config(DataConfig, DATA, ["rate_hz=0"])
+    predictor = load_predictor(str(workspace / "run" / "last.ckpt"))
+    with pytest.raises(PredictionError, match="finite"):
+        predictor.predict(workspace / "box.obj", [np.nan, 0, 0], [0, 0, 1])
+    with pytest.raises(PredictionError, match="rows"):
+        predictor.predict_many([workspace / "box.obj"] * 3, np.zeros((2, 3)), [0, 0, 1])
+    with pytest.raises(PredictionError, match="check the units"):
+        predictor.predict(workspace / "box.obj", [0, 0, 0], [0, 0, 1e6])
