@@ -192,3 +192,25 @@ def test_the_python_api_refuses_the_same_values(workspace):
         predictor.predict_many([workspace / "box.obj"] * 3, np.zeros((2, 3)), [0, 0, 1])
     with pytest.raises(PredictionError, match="check the units"):
         predictor.predict(workspace / "box.obj", [0, 0, 0], [0, 0, 1e6])
+
+
+def test_open3d_that_cannot_load_is_one_line_with_the_fix_before_any_work(workspace, capsys, monkeypatch):
+    # As after a bare `pip install` on a machine without libusb-1.0: the loader fails on import.
+    import builtins
+
+    real_import = builtins.__import__
+
+    def failing_import(name, *args, **kwargs):
+        if name == "open3d":
+            raise OSError("libusb-1.0.so.0: cannot open shared object file: No such file or directory")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.delitem(__import__("sys").modules, "open3d", raising=False)
+    monkeypatch.setattr(builtins, "__import__", failing_import)
+    before = digest(workspace)
+    capsys.readouterr()
+    status = main(["simulate", "--config", DATA, "--out", str(workspace / "new.zarr")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and len(err) == 1, err
+    assert "open3d cannot be loaded" in err[0] and "apt-get install libusb-1.0-0" in err[0]
+    assert digest(workspace) == before

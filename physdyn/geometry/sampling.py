@@ -6,11 +6,26 @@ import numpy as np
 import trimesh
 
 
+def open3d():
+    """The open3d module, imported on first use (heavy; only point sampling and renders need it). A bare
+    `pip install` on a machine without libusb-1.0 cannot load it: that becomes one line with the fix
+    rather than every shape failing with a loader message."""
+    try:
+        import open3d as o3d
+    except (ImportError, OSError) as exc:
+        from physdyn.errors import PhysdynError
+
+        hint = ("install the system library: sudo apt-get install libusb-1.0-0" if "libusb" in str(exc)
+                else "reinstall it: pip install open3d")
+        raise PhysdynError(f"open3d cannot be loaded ({str(exc).splitlines()[0]}); {hint}") from None
+    return o3d
+
+
 def farthest_point_sample(points: np.ndarray, count: int) -> np.ndarray:
     """points: (M, 3) -> (count, 3), greedy farthest-point order starting from points[0] (deterministic)."""
     if count >= len(points):
         return np.asarray(points, dtype=np.float32)
-    import open3d as o3d  # imported lazily: heavy, and only the dataset generator needs it
+    o3d = open3d()
 
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64)))
     return np.asarray(cloud.farthest_point_down_sample(count).points, dtype=np.float32)

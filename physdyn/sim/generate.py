@@ -298,9 +298,11 @@ def generate_dataset(cfg: DataConfig, out: str, workers: int = 1, executor: str 
                      resume: bool = False, overwrite: bool = False, progress: bool = True) -> GenerationReport:
     """Generate the dataset described by ``cfg`` into the store at ``out`` (a path or fsspec URL)."""
     from physdyn.data.store import replacing_store
+    from physdyn.geometry.sampling import open3d
 
     if resume and overwrite:
         raise ConfigError("--resume and --overwrite contradict each other; pass one")
+    open3d()  # at start-up: a missing system library is one line with its fix, not every shape skipped
     started = time.time()
     blocks, categories = plan(cfg)
     chash = config_hash(cfg)
