@@ -48,3 +48,32 @@ def check_writable(path: str | Path, what: str = "output") -> None:
             pass
     except OSError as exc:
         raise PhysdynError(f"{what} {path}: cannot write in {folder} ({exc.strerror}); choose another place") from None
+
+
+class _PlainLines:
+    """A stream for tqdm when the output is a file or a CI log: each refresh becomes one plain line instead
+    of a carriage-return redraw (which a log keeps as hundreds of joined fragments)."""
+
+    def __init__(self, stream):
+        self.stream = stream
+
+    def write(self, text: str) -> None:
+        text = text.replace("\r", "").replace("\x1b[A", "").strip()
+        if text:
+            self.stream.write(text + "\n")
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+
+def progress_bar(total: int, desc: str, unit: str, enabled: bool = True, initial: int = 0, stream=None):
+    """A tqdm bar on a terminal; elsewhere one plain line every 30 s (and at the end)."""
+    import sys
+
+    from tqdm import tqdm
+
+    stream = stream or sys.stderr
+    terminal = hasattr(stream, "isatty") and stream.isatty()
+    return tqdm(total=total, initial=initial, unit=unit, desc=desc, disable=not enabled, smoothing=0.1,
+                file=stream if terminal else _PlainLines(stream), mininterval=0.1 if terminal else 30.0,
+                dynamic_ncols=terminal, ncols=None if terminal else 100, ascii=not terminal)

@@ -321,7 +321,7 @@ def generate_dataset(cfg: DataConfig, out: str, workers: int = 1, executor: str 
 
 def _generate(cfg: DataConfig, out: str, blocks, categories, chash: str, workers: int, executor: str, resume: bool,
               progress: bool, started: float) -> GenerationReport:
-    from tqdm import tqdm
+    from physdyn.files import progress_bar
 
     from physdyn.data.store import StoreWriter
 
@@ -341,8 +341,7 @@ def _generate(cfg: DataConfig, out: str, blocks, categories, chash: str, workers
     work = [(b, tasks) for b, tasks in enumerate(blocks) if b not in done]
     sims_of = lambda tasks: sum(cfg.families[t.family].sims_per_shape for t in tasks)  # noqa: E731
     total = sum(sims_of(t) for t in blocks)
-    bar = tqdm(total=total, initial=total - sum(sims_of(t) for _, t in work), unit="sim",
-               desc="simulate", disable=not progress, smoothing=0.1, file=sys.stderr)
+    bar = progress_bar(total, "simulate", "sim", enabled=progress, initial=total - sum(sims_of(t) for _, t in work))
     try:
         for block_id, arrays, attrs in _execute(cfg, work, workers, executor):
             writer.write_block(block_id, arrays, attrs)
