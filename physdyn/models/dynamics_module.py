@@ -122,6 +122,12 @@ class DynamicsModel(LightningModule):
         input_dim = 6 + (6 if m.orientation_input else 0) + int(self.encoder.out_dim)
         self.predictor = PREDICTORS.build(m.predictor.name, m.predictor.params, "model.predictor.params", input_dim=input_dim)
         self.head = HEADS.build(m.head.name, m.head.params, "model.head.params", in_dim=int(self.predictor.out_dim))
+        if m.prior != "none" and isinstance(getattr(self.head, "linear", None), torch.nn.Linear):
+            # A residual model starts as its prior (the residual layer at zero) and learns only what improves
+            # on it; from random weights it starts as the prior plus noise that training must first remove.
+            with torch.no_grad():
+                self.head.linear.weight.zero_()
+                self.head.linear.bias.zero_()
         f32 = lambda x: torch.tensor(x, dtype=torch.float32)  # noqa: E731
         self.register_buffer("change_scale", f32(norm.change_scales()))
         self.register_buffer("change_shift", f32(norm.change_shifts()))

@@ -70,11 +70,10 @@ def test_unknown_choices_are_one_line_config_errors(tiny_store, tmp_path):
 def test_sliding_prior_alone_rolls_out_exactly_the_coulomb_sliding_baseline(quickstart_config, store, prior):
     # A model whose network outputs nothing: its roll-out is its prior's, step by step. Coulomb sliding in
     # closed form (the baseline) must come out, to float32 precision, including the stop within a step.
+    # A fresh model with a prior starts as the prior: its residual layer is zero (nothing zeroed here).
     model = DynamicsModel(quickstart_config(f"model.prior={prior}"),
                           compute_normalization(store, np.arange(store.num_sims)), {"rate_hz": 15.0, "friction": 0.25})
-    with torch.no_grad():
-        model.head.linear.weight.zero_()
-        model.head.linear.bias.zero_()
+    assert not model.head.linear.weight.any() and not model.head.linear.bias.any()
     B = 4
     rng = np.random.default_rng(0)
     v0 = np.concatenate([rng.uniform(-2, 2, (B, 2)), np.zeros((B, 1))], axis=1)
@@ -233,6 +232,8 @@ def test_tiny_training_run_lowers_the_rollout_error(tiny_store, tmp_path):
                                     {"rate_hz": store.rate_hz, "friction": 0.25}), store, split="train")
     after = evaluate(str(fit(cfg).last_checkpoint), store, split="train")
     b, a = before["headline"], after["headline"]
-    assert a["position"] < 0.7 * b["position"], (a["position"], b["position"])
-    assert a["final_position_m_median"] < 0.8 * b["final_position_m_median"]
+    # A fresh model with a prior *is* the prior (its residual layer starts at zero), so "before" is already
+    # planar Coulomb sliding, not noise: training must improve on the analytic prior itself.
+    assert a["position"] < 0.9 * b["position"], (a["position"], b["position"])
+    assert a["final_position_m_median"] < 0.9 * b["final_position_m_median"]
     assert a["linear_velocity"] < b["linear_velocity"]
