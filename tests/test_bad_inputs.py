@@ -214,3 +214,19 @@ def test_open3d_that_cannot_load_is_one_line_with_the_fix_before_any_work(worksp
     assert status == 2 and len(err) == 1, err
     assert "open3d cannot be loaded" in err[0] and "apt-get install libusb-1.0-0" in err[0]
     assert digest(workspace) == before
+
+
+def test_an_unexpected_error_is_one_line_pointing_to_debug_which_shows_the_traceback(workspace, capsys, monkeypatch):
+    import physdyn.eval.predict as predict_module
+
+    def broken(*args, **kwargs):
+        raise KeyError("something physdyn did not foresee")
+
+    monkeypatch.setattr(predict_module, "load_predictor", broken)
+    argv = ["predict", str(workspace / "box.obj"), "--lin-vel", "1", "0", "0", "--ang-vel", "0", "0", "1"]
+    capsys.readouterr()
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "unexpected error: KeyError" in err[0] and "--debug" in err[0], err
+    with pytest.raises(KeyError):
+        main(["--debug", *argv])

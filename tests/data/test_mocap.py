@@ -144,6 +144,7 @@ def _malformed_folder(trials: Path, folder: Path) -> dict[str, str]:
             "still.csv": "never moves", "header.csv": "malformed header", "nan.csv": "NaN"}
 
 
+@pytest.mark.slow  # seconds-scale; the default run stays near 3 minutes, CI runs it (-m slow)
 def test_malformed_trials_are_reported_and_the_rest_imported(trials, tmp_path):
     expected = _malformed_folder(trials, tmp_path / "mixed")
     out = tmp_path / "mixed.zarr"
@@ -173,6 +174,7 @@ def test_malformed_trials_are_reported_and_the_rest_imported(trials, tmp_path):
     assert proc.returncode == 2 and "box:W,D,H" in proc.stderr
 
 
+@pytest.mark.slow  # seconds-scale; the default run stays near 3 minutes, CI runs it (-m slow)
 def test_realworld_preset_trains_and_tests_with_warm_start(store, tmp_path):
     import torch
 

@@ -176,6 +176,7 @@ def test_a_file_that_is_not_a_physdyn_checkpoint_is_a_clear_error(tmp_path):
         assert "\n" not in str(info.value)
 
 
+@pytest.mark.slow  # seconds-scale; the default run stays near 3 minutes, CI runs it (-m slow)
 def test_physdyn_test_command_writes_the_report(tiny_store, tiny_checkpoint, tmp_path):
     out = tmp_path / "report"
     proc = run_cli("test", "--checkpoint", tiny_checkpoint, "--data", tiny_store, "--out", str(out), "--warm-start", "1",

@@ -23,6 +23,7 @@ SMALL_ENCODER = [
 ]
 
 
+@pytest.mark.slow  # seconds-scale; the default run stays near 3 minutes, CI runs it (-m slow)
 def test_physdyn_pretrain_runs_a_few_steps_and_fit_can_start_from_it(tmp_path):
     out = tmp_path / "pre"
     proc = run_cli(

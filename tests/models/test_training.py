@@ -50,6 +50,7 @@ def test_every_registered_component_combination_trains(quickstart_config, encode
     assert saved.model.predictor.name == predictor and saved.data.store == cfg.data.store
 
 
+@pytest.mark.slow  # seconds-scale; the default run stays near 3 minutes, CI runs it (-m slow)
 def test_model_overfits_a_tiny_store(tiny_store, tmp_path):
     # A fixed set of real windows from the store, the module's own loss: the loss must fall >= 10x.
     # Teacher forcing keeps the inputs fixed (the preset's roll-out feedback feeds the model's own, moving
@@ -158,6 +159,7 @@ def test_resume_continues_and_finished_runs_are_protected(quickstart_config):
     assert json.loads((again.out_dir / "finished.json").read_text())["global_step"] == 1
 
 
+@pytest.mark.slow  # seconds-scale; the default run stays near 3 minutes, CI runs it (-m slow)
 def test_cli_fit_output_is_free_of_lightning_noise(tiny_store, tmp_path):
     # Lightning's cloud-logger tip and a torch deprecation warning it triggers used to print on every run.
     from physdyn.models.training import LIGHTNING_NOISE

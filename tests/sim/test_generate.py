@@ -79,6 +79,7 @@ def test_store_follows_the_conventions(tiny_store):
     assert d.toppled.any() and not d.toppled.all()
 
 
+@pytest.mark.slow  # seconds-scale; the default run stays near 3 minutes, CI runs it (-m slow)
 def test_same_arrays_whatever_the_worker_count(tmp_path):
     cfg = small_config()
     a = generate_dataset(cfg, str(tmp_path / "w1.zarr"), workers=1, progress=False)
@@ -87,6 +88,7 @@ def test_same_arrays_whatever_the_worker_count(tmp_path):
     assert_same_arrays(load_store(tmp_path / "w1.zarr"), load_store(tmp_path / "w2.zarr"))
 
 
+@pytest.mark.slow  # seconds-scale; the default run stays near 3 minutes, CI runs it (-m slow)
 def test_a_different_seed_gives_different_shapes(tmp_path):
     generate_dataset(small_config(), str(tmp_path / "a.zarr"), progress=False)
     generate_dataset(small_config("seed=1"), str(tmp_path / "b.zarr"), progress=False)
@@ -117,6 +119,7 @@ def test_killed_run_is_incomplete_then_resumes_to_identical_arrays(tmp_path):
     assert_same_arrays(load_store(out), load_store(ref))
 
 
+@pytest.mark.slow  # seconds-scale; the default run stays near 3 minutes, CI runs it (-m slow)
 def test_resume_survives_a_part_with_truncated_metadata(tmp_path):
     """SIGKILL can land while zarr writes a part's zarr.json; resume must redo that part, not crash."""
     import zarr
@@ -141,6 +144,7 @@ def test_resume_survives_a_part_with_truncated_metadata(tmp_path):
     assert zarr.open_group(str(out), mode="r").attrs["complete"] is True
 
 
+@pytest.mark.slow  # seconds-scale; the default run stays near 3 minutes, CI runs it (-m slow)
 def test_existing_store_is_never_overwritten_without_flag(tmp_path, tiny_store):
     out = tmp_path / "mine.zarr"
     cfg = small_config()
@@ -265,6 +269,7 @@ def test_mesh_folder_not_set_is_a_clear_error(tmp_path):
     assert proc.returncode == 2 and "meshes.dir" in proc.stderr
 
 
+@pytest.mark.slow  # seconds-scale; the default run stays near 3 minutes, CI runs it (-m slow)
 def test_voxel_mass_is_reported_against_exact(tmp_path):
     out = tmp_path / "vox.zarr"
     generate_dataset(small_config("mass.method=voxel"), str(out), progress=False)
@@ -275,12 +280,14 @@ def test_voxel_mass_is_reported_against_exact(tmp_path):
     assert summarize(load_store(out))["voxel_vs_exact_mass_error"]["median"] < 0.05
 
 
+@pytest.mark.slow  # seconds-scale; the default run stays near 3 minutes, CI runs it (-m slow)
 def test_store_at_an_fsspec_url(tmp_path):
     url = f"file://{tmp_path}/remote.zarr"
     generate_dataset(small_config(), url, progress=False)
     assert load_store(url).num_sims == 36
 
 
+@pytest.mark.slow  # seconds-scale; the default run stays near 3 minutes, CI runs it (-m slow)
 def test_random_friction_is_recorded_and_used(tmp_path):
     out = tmp_path / "fr.zarr"
     generate_dataset(small_config("friction.random=true", "friction.min=0.1", "friction.max=0.6"), str(out), progress=False)
@@ -288,6 +295,7 @@ def test_random_friction_is_recorded_and_used(tmp_path):
     assert d.friction.min() >= 0.1 and d.friction.max() <= 0.6 and d.friction.std() > 0.05
 
 
+@pytest.mark.slow  # seconds-scale; the default run stays near 3 minutes, CI runs it (-m slow)
 def test_30hz_recording(tmp_path):
     out = tmp_path / "30.zarr"
     generate_dataset(small_config("rate_hz=30"), str(out), progress=False)
