@@ -331,6 +331,10 @@ class ModelConfig:
     # footprint read from the point cloud; needs orientation_input). See physdyn/models/priors.py and
     # docs/ablations.md.
     prior: str = "none"
+    # With a prior: below both of these speeds (horizontal m/s, rad/s) the network's residual is switched off
+    # and the prior alone predicts the step (0: never). Chosen on validation, docs/ablations.md.
+    residual_gate_linear: float = 0.0
+    residual_gate_angular: float = 0.0
     # Feed the object's current orientation relative to step 0 (6D rotation representation) at every step;
     # the paper feeds velocities only, so the predictor is never told how the object has turned.
     orientation_input: bool = False

@@ -206,6 +206,13 @@ class DynamicsModel(LightningModule):
             prior = prior_changes(self.config.model.prior, linear_velocity, angular_velocity, self.prior_dt,
                                   self.prior_friction, self.prior_gravity)
         if prior is not None:  # the network predicts the residual to the analytic prior
+            m = self.config.model
+            if m.residual_gate_linear > 0 or m.residual_gate_angular > 0:
+                # Near rest the prior's stop is exact (below 0.1 m/s a slide ends within one 1/15 s step)
+                # and the residual only adds drift: below both speeds the prediction is the prior's.
+                moving = ((linear_velocity[..., :2].norm(dim=-1) > m.residual_gate_linear)
+                          | (angular_velocity.norm(dim=-1) > m.residual_gate_angular))
+                changes = changes * moving.unsqueeze(-1).to(changes.dtype)
             changes = changes + (prior - self.change_shift) / self.change_scale
         return changes, logit, state
 

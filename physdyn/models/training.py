@@ -76,6 +76,10 @@ def validate_experiment_config(cfg: ExperimentConfig) -> ExperimentConfig:
     for key, value, allowed in choices:
         if value not in allowed:
             raise ConfigError(f"config key '{key}': '{value}' is not one of {', '.join(allowed)}")
+    for key in ("residual_gate_linear", "residual_gate_angular"):
+        value = getattr(m, key)
+        if not (value >= 0 and np.isfinite(value)):
+            raise ConfigError(f"config key 'model.{key}': a speed >= 0, got {value}")
     if m.prior in SHAPE_PRIORS and not m.orientation_input:
         raise ConfigError(f"config key 'model.prior': '{m.prior}' turns the footprint with the object; set model.orientation_input=true")
     for key, value in (("rollout.feedback", cfg.rollout.feedback), ("data.first_window_fraction", cfg.data.first_window_fraction)):

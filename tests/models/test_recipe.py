@@ -35,6 +35,7 @@ LEVERS = [
     ["model.prior=coulomb", "model.orientation_input=true", "data.normalization=std"],
     ["model.prior=planar", "data.normalization=std_inputs", "rollout.feedback=1.0"],
     ["model.prior=contact", "model.orientation_input=true", "rollout.feedback=1.0", "loss.kind=huber"],
+    ["model.prior=planar", "model.residual_gate_linear=0.1", "model.residual_gate_angular=1.0"],
 ]
 
 
@@ -150,6 +151,22 @@ def test_contact_prior_slides_like_coulomb_without_spin_and_couples_spin_and_sli
     # tilt and vertical velocity are taken away, as the planar prior does
     c = contact_changes(torch.tensor([[[0.5, 0.0, 0.2]]]), torch.tensor([[[1.0, -2.0, 0.0]]]), identity, geometry, dt, mu, g)
     assert torch.allclose(c[0, 0, 2:5], torch.tensor([-0.2, -1.0, 2.0]))
+
+
+def test_below_the_gate_speeds_the_prediction_is_the_priors_alone(quickstart_config, store):
+    model = DynamicsModel(quickstart_config("model.prior=planar", "model.residual_gate_linear=0.1",
+                                            "model.residual_gate_angular=1.0"),
+                          compute_normalization(store, np.arange(store.num_sims)), {"rate_hz": 15.0, "friction": 0.25})
+    with torch.no_grad():  # a network with a large residual everywhere
+        model.head.linear.bias.fill_(0.5)
+    feature = model.encode_points(torch.zeros(2, 64, 3) + torch.randn(2, 64, 3) * 0.05)
+    v = torch.tensor([[0.05, 0.0, 0.0], [0.5, 0.0, 0.0]])  # one slow (gated), one fast
+    w = torch.tensor([[0.0, 0.0, 0.5], [0.0, 0.0, 0.5]])
+    pred = model.step(feature, v, w, None, torch.tensor([[0.0, 0.0, 0.0, 1.0]] * 2))
+    prior = prior_changes("planar", v, w, 1 / 15, 0.25)
+    got = torch.cat([pred.delta_linear_velocity, pred.delta_angular_velocity, pred.delta_position, pred.delta_rotation], -1)
+    assert torch.allclose(got[0], prior[0], atol=1e-6)  # below both gates: the prior exactly
+    assert not torch.allclose(got[1], prior[1], atol=1e-3)  # above: the residual applies
 
 
 def test_the_contact_prior_needs_the_orientation(tiny_store, tmp_path):
