@@ -255,3 +255,31 @@ def test_overwrite_never_deletes_a_folder_that_is_not_a_run(quickstart_config, t
     first = fit(quickstart_config("trainer.max_steps=1", out="run"))
     again = fit(quickstart_config("trainer.max_steps=1", out="run"), overwrite=True)
     assert again.out_dir == first.out_dir and (again.out_dir / "finished.json").is_file()
+
+
+@pytest.mark.slow  # a real process killed mid-training; seconds to a minute
+def test_a_killed_fit_resumes_to_the_planned_step_and_keeps_its_history(tiny_store, tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "killed"
+    args = ["fit", "--config", str(QUICKSTART), *shrunk_overrides(tiny_store, out, "trainer.max_steps=400")]
+    proc = subprocess.Popen([sys.executable, "-m", "physdyn.cli", *args], cwd=REPO, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+    deadline = time.time() + 240
+    while time.time() < deadline and not (out / "last.ckpt").is_file():
+        time.sleep(0.1)
+    time.sleep(1.0)  # a little past the first checkpoint
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait(timeout=30)
+    assert (out / "last.ckpt").is_file() and not (out / "finished.json").exists()
+    killed_at = torch.load(out / "last.ckpt", map_location="cpu", weights_only=False)["global_step"]
+    assert 0 < killed_at < 400
+    resumed = run_cli(*args, "--resume", timeout=600)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    assert json.loads((out / "finished.json").read_text())["global_step"] == 400
+    steps = sorted({int(float(r["step"])) for r in csv.DictReader((out / "csv" / "metrics.csv").open()) if r["train/loss_step"]})
+    assert steps[0] <= 1 and steps[-1] >= 390  # one history from the first step to the last, across the kill
