@@ -58,11 +58,11 @@ def main(argv: list[str] | None = None) -> int:
     except PhysdynError as exc:
         print(f"physdyn {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # `physdyn components | head`: the reader left; not an error
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except OSError as exc:  # a missing folder, no permission, a full disk: the user's to fix, not a bug
-        if args.debug or isinstance(exc, BrokenPipeError):
-            if isinstance(exc, BrokenPipeError):  # `physdyn components | head`: the reader left; not an error
-                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-                return 0
+        if args.debug:
             raise
         where = f": {exc.filename}" if exc.filename else ""
         print(f"physdyn {args.command}: error: {exc.strerror or exc}{where}", file=sys.stderr)

@@ -287,10 +287,7 @@ class DynamicsModel(LightningModule):
         # One encoding per distinct cloud: a batch of requests often pushes the same object in the same pose
         # (in eval mode every cloud is encoded on its own, so this changes no number).
         unique, inverse = torch.unique(points.reshape(B, -1), dim=0, return_inverse=True)
-        if len(unique) < B:
-            feature = self.encode(unique.reshape(len(unique), *points.shape[1:]))[inverse]
-        else:
-            feature = self.encode(points)
+        feature = self.encode(unique.reshape(len(unique), *points.shape[1:]))[inverse]
         v = torch.as_tensor(linear_velocity0, dtype=f64, device=device).reshape(B, 3)
         w = torch.as_tensor(angular_velocity0, dtype=f64, device=device).reshape(B, 3)
         K = 0 if warm_linear is None else int(warm_linear.shape[1])
