@@ -51,7 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument("--compare-sim", action="store_true",
                    help="also simulate the same initial state in PyBullet (key 'simulated' in the output)")
-    p.add_argument("--render", metavar="FILE", help="write an animation: .gif (or .mp4 if ffmpeg is installed)")
+    p.add_argument("--render", metavar="FILE", help="write an animation: .gif (or .mp4 if ffmpeg is installed), or .html for the interactive viewer")
     p.add_argument("--fps", type=float, default=15.0, help="frames per second of --render (default: %(default)s)")
     p.add_argument("--batch", metavar="REQUESTS.jsonl", help="predict every request of a JSONL file (see below)")
     p.add_argument("--out-dir", metavar="DIR", help="with --batch: folder for the output files")

@@ -14,13 +14,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=(
             "Roll a trained model out on every simulation of a split, beside the stay-put and Coulomb-sliding "
             "baselines (and optionally another checkpoint such as the MLP baseline), and write metrics.json, "
-            "report.md and PNG plots to --out. Definitions: docs/evaluation.md."
+            "report.md, PNG plots and viewer.html (an interactive page of the best, median and worst sequence "
+            "of each category: docs/viewer.md) to --out. Definitions: docs/evaluation.md."
         ),
         epilog="example: physdyn test --checkpoint runs/quickstart/best.ckpt --data data/quickstart.zarr --out runs/quickstart/test",
     )
     p.add_argument("--checkpoint", required=True, help="a .ckpt written by `physdyn fit`")
     p.add_argument("--data", help="store to evaluate on (default: the store the model was trained on)")
-    p.add_argument("--out", required=True, help="folder for metrics.json, report.md and the plots")
+    p.add_argument("--out", required=True, help="folder for metrics.json, report.md, the plots and viewer.html")
+    p.add_argument("--no-viewer", action="store_true", help="do not write viewer.html (a few MB)")
     p.add_argument("--split", choices=["train", "val", "test"], default="test", help="default: %(default)s")
     p.add_argument("--warm-start", type=int, default=0, metavar="K",
                    help="feed the true velocities of steps 1..K before rolling out (default: %(default)s)")
@@ -35,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
     from physdyn.errors import PhysdynError
     from physdyn.eval.baselines import load_checkpoint
     from physdyn.eval.evaluate import compare
-    from physdyn.eval.report import check_report_target, write_report
+    from physdyn.eval.report import VIEWER_FILE, check_report_target, write_report
 
     if args.warm_start < 0:
         raise PhysdynError(f"--warm-start must be >= 0, got {args.warm_start}")
@@ -45,11 +47,30 @@ def run(args: argparse.Namespace) -> int:
     if not data:
         raise PhysdynError(f"{args.checkpoint} does not record its store; pass --data STORE")
     baselines = ["stay_put", "coulomb_slide", *(load_checkpoint(c) for c in args.baseline_checkpoint)]
-    result = compare(model, data, baselines, split=args.split, warm_start=args.warm_start, categories=args.categories)
+    result = compare(model, data, baselines, split=args.split, warm_start=args.warm_start, categories=args.categories,
+                     keep_trajectories=not args.no_viewer)
+    kept = result["results"][result["model"]].pop("trajectories", None)
     paths = write_report(result, args.out, overwrite=args.overwrite)
+    if kept is not None:
+        paths["viewer"] = _write_viewer(result, kept, data, f"{args.out}/{VIEWER_FILE}", args.overwrite)
     head = result["results"][result["model"]]["headline"]
     print(f"{result['model']} on {head['count']} non-toppling {args.split} sequences: "
           f"position {head['position']:.4g} m/step, final position (median) {head['final_position_m_median']:.4g} m")
     print(result["verdict"])
     print(f"wrote {', '.join(str(p) for p in paths.values())}")
     return 0
+
+
+def _write_viewer(result: dict, kept: dict, data: str, path: str, overwrite: bool):
+    """The page of the best, median and worst final position error of each category: the very roll-outs
+    that were scored."""
+    from physdyn.data.store import load_store
+    from physdyn.eval.store_scenes import pick_sequences, store_scenes
+    from physdyn.eval.viewer import write_viewer
+
+    model_result = result["results"][result["model"]]
+    picked = pick_sequences(model_result["per_sequence"])
+    scenes = store_scenes(load_store(data), kept["sims"], kept["predicted"], kept["truth"],
+                          [i for i, _ in picked], [label for _, label in picked])
+    title = f"{result['model']} on {model_result['store']} ({model_result['split']} split)"
+    return write_viewer(scenes, path, title=title, overwrite=overwrite)

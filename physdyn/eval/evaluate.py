@@ -207,7 +207,8 @@ def check_compatible(predictor: Any, store: StoreData, sims: np.ndarray, warm_st
 
 
 def evaluate(model_or_baseline: Any, store: StoreData | str, split: str = "test", warm_start: int = 0,
-             categories: Sequence[str] | None = None, batch_size: int = 256, seed: int = 0) -> dict[str, Any]:
+             categories: Sequence[str] | None = None, batch_size: int = 256, seed: int = 0,
+             keep_trajectories: bool = False) -> dict[str, Any]:
     """All metrics of one predictor on a split of a store.
 
     model_or_baseline: a ``DynamicsModel``, a checkpoint path, a ``Baseline`` or a baseline name
@@ -219,6 +220,8 @@ def evaluate(model_or_baseline: Any, store: StoreData | str, split: str = "test"
     holds ``count``, ``rollout`` and ``single_step`` (step errors: linear_velocity m/s, angular_velocity
     rad/s, position m, angle_deg, axis), ``relative`` and ``relative_step`` (fractions), and
     ``final_position_m`` / ``final_rotation_deg`` (mean, median). Definitions: ``physdyn.eval.metrics``.
+    ``keep_trajectories`` adds ``trajectories``: {"sims", "predicted" (``RolloutResult``), "truth"} - numpy,
+    not JSON - for a viewer of the very roll-outs that were scored.
     """
     if warm_start < 0:
         raise EvaluationError(f"warm start must be >= 0 steps, got {warm_start}")
@@ -243,6 +246,7 @@ def evaluate(model_or_baseline: Any, store: StoreData | str, split: str = "test"
         predicted = M.predicted_topple(pred.topple_probability, truth["state_valid"])
         topple = M.topple_classification(predicted, truth["toppled"])
     nt = rollout_groups["non_toppling"]
+    kept = {"trajectories": {"sims": sims, "predicted": pred, "truth": truth}} if keep_trajectories else {}
     return {
         "predictor": predictor_name(predictor, str(model_or_baseline) if isinstance(model_or_baseline, str) else "model"),
         "store": store.url,
@@ -263,18 +267,20 @@ def evaluate(model_or_baseline: Any, store: StoreData | str, split: str = "test"
             "category": [store.category_names[c] if c < len(store.category_names) else str(c) for c in truth["category"]],
             **{f"{part}.{k}": v.tolist() for part, d in per_seq.items() for k, v in d.items()},
         },
+        **kept,
     }
 
 
 def compare(model: Any, store: StoreData | str, baselines: Sequence[Any] = ("stay_put", "coulomb_slide"),
-            split: str = "test", warm_start: int = 0, categories: Sequence[str] | None = None, **kwargs: Any) -> dict[str, Any]:
+            split: str = "test", warm_start: int = 0, categories: Sequence[str] | None = None,
+            keep_trajectories: bool = False, **kwargs: Any) -> dict[str, Any]:
     """``evaluate`` for a model and each baseline (names, ``Baseline`` objects or checkpoints, e.g. the
     MLP baseline). Returns ``results`` (name -> evaluation), ``table`` (one row per predictor: headline
     numbers) and ``verdict``: whether the model beats Coulomb sliding on the median final position error of
-    the non-toppling sequences."""
+    the non-toppling sequences. ``keep_trajectories``: the model's result keeps its roll-outs (``evaluate``)."""
     store = load_store(store) if isinstance(store, str) else store
     results: dict[str, dict] = {}
-    model_result = evaluate(model, store, split, warm_start, categories, **kwargs)
+    model_result = evaluate(model, store, split, warm_start, categories, keep_trajectories=keep_trajectories, **kwargs)
     model_name = model_result["predictor"]
     results[model_name] = model_result
     skipped: dict[str, str] = {}

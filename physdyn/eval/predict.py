@@ -29,7 +29,7 @@ from physdyn.files import atomic_output, check_writable
 BUNDLED_CHECKPOINT = Path(__file__).resolve().parents[1] / "assets" / "bundled.ckpt"
 OUTPUT_EXTENSIONS = (".json", ".npz", ".csv")
 STEP_KEYS = ("time", "com_position", "orientation_xyzw", "linear_velocity", "angular_velocity", "topple_probability")
-SCALAR_KEYS = ("rate_hz", "toppled", "com_mesh", "mesh", "checkpoint")
+SCALAR_KEYS = ("rate_hz", "toppled", "com_mesh", "mesh", "mesh_scale", "checkpoint")
 # CSV column suffixes of the per-step vectors.
 _COMPONENTS = {"com_position": "xyz", "orientation_xyzw": "xyzw", "linear_velocity": "xyz", "angular_velocity": "xyz"}
 _CSV_COLUMN_BASE = {"orientation_xyzw": "orientation"}
@@ -154,6 +154,7 @@ class PreparedBody:
     spec: Any
     name: str
     notes: list[str] = field(default_factory=list)
+    scale: float = 1.0  # applied to the file's coordinates to get metres
     _points: dict[int, np.ndarray] = field(default_factory=dict, repr=False)
 
     def points_body(self, num_points: int) -> np.ndarray:
@@ -197,7 +198,7 @@ def prepare_body(mesh: Any, scale: float = 1.0, density: float | None = None) ->
     density = MassConfig().density if density is None else float(density)
     props = solid_mass_properties(prepared.mesh, prepared.watertight, density, f"mesh {name}")
     spec = RigidBodySpec.from_mesh(prepared.mesh, props)
-    return PreparedBody(mesh=prepared.mesh, spec=spec, name=name, notes=list(prepared.warnings))
+    return PreparedBody(mesh=prepared.mesh, spec=spec, name=name, notes=list(prepared.warnings), scale=float(scale))
 
 
 def initial_pose(spec: Any, orientation_xyzw: np.ndarray) -> np.ndarray:
@@ -377,6 +378,7 @@ class Predictor:
             "toppled": bool(toppled),
             "com_mesh": np.asarray(body.spec.com_mesh, dtype=np.float64),
             "mesh": body.name,
+            "mesh_scale": body.scale,  # the mesh file's units to metres, so a viewer can draw it again
             "checkpoint": source,
         }
 
@@ -545,7 +547,7 @@ def read_prediction(path: str | Path) -> dict[str, Any]:
             out[key] = np.asarray(value, dtype=np.float64)
         elif base == "toppled":
             out[key] = bool(value)
-        elif base == "rate_hz":
+        elif base in ("rate_hz", "mesh_scale"):
             out[key] = float(value)
         else:
             out[key] = str(value)

@@ -16,6 +16,7 @@ from physdyn.errors import PhysdynError
 
 MAX_FACES = 500
 ANIMATION_EXTENSIONS = (".gif", ".mp4")
+RENDER_EXTENSIONS = (*ANIMATION_EXTENSIONS, ".html")  # .html: the interactive viewer page
 _PANEL_COLOURS = {"prediction": (0.27, 0.51, 0.71), "simulation": (0.85, 0.45, 0.2)}
 _LIGHT = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
 
@@ -31,10 +32,11 @@ def ffmpeg_available() -> bool:
 
 
 def check_animation_path(path: str | Path, overwrite: bool = False) -> Path:
-    """Refuse an unsupported extension, an MP4 without ffmpeg, or an existing file, before any work."""
+    """Refuse an unsupported extension, an MP4 without ffmpeg, or an existing file, before any work.
+    An .html path is a viewer page (``physdyn.eval.viewer``)."""
     from physdyn.eval.predict import check_output_path
 
-    path = check_output_path(path, overwrite, ANIMATION_EXTENSIONS, what="animation")
+    path = check_output_path(path, overwrite, RENDER_EXTENSIONS, what="animation")
     if path.suffix.lower() == ".mp4" and not ffmpeg_available():
         raise RenderError(f"animation {path}: MP4 needs ffmpeg, which is not installed; write a .gif instead or install ffmpeg")
     return path
@@ -92,7 +94,8 @@ def _shade(tris: np.ndarray, colour: tuple[float, float, float]) -> np.ndarray:
 def render_animation(mesh: Any, result: dict[str, Any], path: str | Path, fps: float = 15, scale: float = 1.0,
                      overwrite: bool = False) -> Path:
     """Animate ``result`` (a ``Predictor.predict`` dict) with ``mesh`` (a path, a ``trimesh.Trimesh`` or a
-    ``PreparedBody``, at ``scale`` as predicted) into ``path`` (.gif, or .mp4 with ffmpeg).
+    ``PreparedBody``, at ``scale`` as predicted) into ``path`` (.gif, or .mp4 with ffmpeg; .html writes the
+    interactive viewer page instead).
 
     One frame per 1/fps s of the trajectory (the nearest recorded step): with fps = rate_hz, one frame per
     step. With ``result["simulated"]`` the prediction and the simulation are drawn side by side. Each
@@ -106,6 +109,11 @@ def render_animation(mesh: Any, result: dict[str, Any], path: str | Path, fps: f
     from PIL import Image
 
     path = check_animation_path(path, overwrite)
+    if path.suffix.lower() == ".html":
+        from physdyn.eval.viewer import scene_from_prediction, write_viewer
+
+        m = _load(mesh, scale)
+        return write_viewer([scene_from_prediction(result, m)], path, title=f"physdyn: {path.stem}", overwrite=overwrite)
     if not np.isfinite(fps) or fps <= 0:
         raise RenderError(f"fps must be a positive number, got {fps}")
     m = _load(mesh, scale)

@@ -105,6 +105,7 @@ def plot_errors_per_category(comparison: dict, path: Path) -> None:
 
 REPORT_FILES = {"metrics": "metrics.json", "report": "report.md",
                 "error_vs_time": "rollout_error_vs_time.png", "per_category": "errors_per_category.png"}
+VIEWER_FILE = "viewer.html"  # written beside the report by `physdyn test` (physdyn.eval.store_scenes)
 
 
 def check_report_target(out_dir: str | Path, overwrite: bool = False) -> None:
@@ -115,7 +116,7 @@ def check_report_target(out_dir: str | Path, overwrite: bool = False) -> None:
     if Path(out_dir).is_file():
         raise PhysdynError(f"--out {out_dir} is a file; pass a folder for the report")
     check_writable(out_dir, "--out")
-    existing = [name for name in REPORT_FILES.values() if (Path(out_dir) / name).exists()]
+    existing = [name for name in (*REPORT_FILES.values(), VIEWER_FILE) if (Path(out_dir) / name).exists()]
     if existing and not overwrite:
         raise PhysdynError(f"{out_dir} already holds a report ({existing[0]}); pass --overwrite to replace it or choose another --out")
 

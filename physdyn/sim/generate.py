@@ -114,6 +114,11 @@ def shape_seed(cfg: DataConfig, task: ShapeTask) -> np.random.SeedSequence:
     return np.random.SeedSequence([cfg.seed, zlib.crc32(task.family.encode()), task.index])
 
 
+def task_streams(cfg: DataConfig, task: ShapeTask) -> list[np.random.SeedSequence]:
+    """The task's three random streams: the shape, its simulations, its point cloud (in that order)."""
+    return shape_seed(cfg, task).spawn(3)
+
+
 # --------------------------------------------------------------------------------------------------
 # Work (runs in worker processes)
 # --------------------------------------------------------------------------------------------------
@@ -140,7 +145,7 @@ def prepare_shape(cfg: DataConfig, family, task: ShapeTask) -> dict:
     from physdyn.geometry.sampling import sample_surface_points
     from physdyn.sim.body import RigidBodySpec
 
-    shape_ss, sims_ss, points_ss = shape_seed(cfg, task).spawn(3)
+    shape_ss, sims_ss, points_ss = task_streams(cfg, task)
     instance = family.make(task.index, np.random.default_rng(shape_ss))
     prepared = prepare_mesh(instance.mesh, instance.source)
     mesh, notes = prepared.mesh, list(prepared.warnings)

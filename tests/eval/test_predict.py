@@ -19,7 +19,7 @@ from tests.conftest import run_cli
 from tests.models.conftest import QUICKSTART, shrunk_overrides
 
 KEYS = {"rate_hz", "time", "com_position", "orientation_xyzw", "linear_velocity", "angular_velocity",
-        "topple_probability", "toppled", "com_mesh", "mesh", "checkpoint"}
+        "topple_probability", "toppled", "com_mesh", "mesh", "mesh_scale", "checkpoint"}
 LIN, ANG, SECONDS = [1.2, 0.0, 0.0], [0.0, 0.0, 3.0], 2.0
 
 

@@ -188,6 +188,19 @@ def test_physdyn_test_command_writes_the_report(tiny_store, tiny_checkpoint, tmp
     assert (out / "report.md").read_text().count("coulomb_slide") >= 1
     for png in ("rollout_error_vs_time.png", "errors_per_category.png"):
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # The viewer shows the very roll-outs that were scored: best, median and worst of each category.
+    from physdyn.eval.viewer import read_viewer_data
+
+    scenes = read_viewer_data(out / "viewer.html")["scenes"]
+    per_seq = metrics["results"][metrics["model"]]["per_sequence"]
+    store_data = load_store(tiny_store)
+    assert len(scenes) == 3 * len(set(per_seq["category"]))
+    for scene in scenes:
+        sim = int(scene["title"].split("(sim ")[1].split(",")[0])
+        i = per_seq["sim"].index(sim)
+        final = np.asarray(scene["predicted"]["com_position"][-1]) - np.asarray(scene["reference"]["com_position"][-1])
+        np.testing.assert_allclose(np.linalg.norm(final), per_seq["final.position_m"][i], atol=1e-5)
+        np.testing.assert_allclose(scene["reference"]["com_position"], store_data.com_position[store_data.frames(sim)], atol=1e-6)
     bad = tmp_path / "bad.ckpt"
     torch.save({"weights": [1, 2]}, bad)
     proc = run_cli("test", "--checkpoint", str(bad), "--data", tiny_store, "--out", str(tmp_path / "x"))
