@@ -30,13 +30,13 @@ quickstart: install
 	physdyn test --checkpoint runs/quickstart/best.ckpt --data data/quickstart.zarr --out reports/quickstart --overwrite
 	physdyn predict examples/meshes/bracket_mm.obj --scale 0.001 --lin-vel 1.2 0 0 --ang-vel 0 0 3 --seconds 4 \
 		--checkpoint runs/quickstart/best.ckpt --compare-sim --out reports/quickstart/bracket.json \
-		--render reports/quickstart/bracket.gif --overwrite
+		--render reports/quickstart/bracket.html --overwrite
 	@echo
 	@echo "results:"
 	@echo "  dataset        data/quickstart.zarr        (physdyn data info data/quickstart.zarr)"
 	@echo "  model          runs/quickstart/best.ckpt   (logs: runs/quickstart/csv, runs/quickstart/tensorboard)"
-	@echo "  test report    reports/quickstart/report.md, metrics.json, *.png"
-	@echo "  prediction     reports/quickstart/bracket.json, reports/quickstart/bracket.gif"
+	@echo "  test report    reports/quickstart/report.md, metrics.json, *.png, viewer.html (open in a browser)"
+	@echo "  prediction     reports/quickstart/bracket.json, reports/quickstart/bracket.html (open in a browser)"
 	@echo
 	@$(PYTHON) -c "import json; print('verdict:', json.load(open('reports/quickstart/metrics.json'))['verdict'])"
 
