@@ -168,8 +168,9 @@ def _summary(per_seq: dict[str, dict[str, np.ndarray]], keep: np.ndarray) -> dic
 
 
 def _curves(pred: RolloutResult, truth: dict[str, np.ndarray], groups: dict[str, np.ndarray]) -> dict[str, dict[str, list[float]]]:
-    """Per group: mean error at each step index over its sequences still running there (for plots). The
-    errors are computed once for every sequence, then sliced per group."""
+    """Per group: mean error at each step index over its sequences still running there (for plots), and for
+    the accumulated position and rotation errors their quartiles (``*_q25``, ``*_median``, ``*_q75``) and
+    ``count``. The errors are computed once for every sequence, then sliced per group."""
     step_err = M.step_errors(pred.deltas(), truth)
     pos = M.position_error_curve(pred.com_position, truth["com_position"])
     rot = M.rotation_angle_deg(pred.orientation_xyzw, truth["orientation_xyzw"])
@@ -182,6 +183,9 @@ def _curves(pred: RolloutResult, truth: dict[str, np.ndarray], groups: dict[str,
         position, count = M.error_curve(pos[keep], sv)
         curves["position_m"] = position.tolist()
         curves["rotation_deg"] = M.error_curve(rot[keep], sv)[0].tolist()
+        for key, err in (("position_m", pos), ("rotation_deg", rot)):
+            q25, q50, q75 = M.error_quantiles(err[keep], sv)
+            curves.update({f"{key}_q25": q25.tolist(), f"{key}_median": q50.tolist(), f"{key}_q75": q75.tolist()})
         curves["count"] = count.tolist()
         out[group] = curves
     return out

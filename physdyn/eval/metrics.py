@@ -170,6 +170,20 @@ def error_curve(errors: np.ndarray, valid: np.ndarray | None = None) -> tuple[np
     return mean, count
 
 
+def error_quantiles(errors: np.ndarray, valid: np.ndarray | None = None,
+                    quantiles: tuple[float, ...] = (0.25, 0.5, 0.75)) -> np.ndarray:
+    """Quantiles of the error at each step index over the sequences still running there: (Q, S), NaN where
+    no sequence counts. Medians and quartiles, unlike means, are not dragged by a few long failures."""
+    errors = np.asarray(errors, np.float64)
+    ok = _valid(valid, errors.shape) & ~np.isnan(errors)
+    masked = np.where(ok, errors, np.nan)
+    out = np.full((len(quantiles), errors.shape[1]), np.nan)
+    some = ok.any(axis=0)
+    if some.any():
+        out[:, some] = np.nanquantile(masked[:, some], quantiles, axis=0)
+    return out
+
+
 def predicted_topple(probability: np.ndarray, valid: np.ndarray | None = None, threshold: float = TOPPLE_THRESHOLD) -> np.ndarray:
     """(B, T) per-step probabilities -> (B,) bool: any valid step at or above the threshold."""
     p = np.asarray(probability, np.float64)

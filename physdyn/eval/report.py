@@ -2,7 +2,8 @@
 
 - ``metrics.json``: the whole comparison (NaN written as null)
 - ``report.md``: the headline table (non-toppling roll-outs, as in the paper) and the verdict
-- ``rollout_error_vs_time.png``: mean accumulated position and rotation error per step (supplement Fig. 1)
+- ``rollout_error_vs_time.png``: median accumulated position and rotation error per step with the
+  interquartile band, model beside the baselines, cut where fewer than a quarter of the sequences still run
 - ``errors_per_category.png``: mean roll-out errors per category (supplement Fig. 6)
 """
 
@@ -58,22 +59,58 @@ def markdown(comparison: dict) -> str:
     return "\n".join(lines)
 
 
-def plot_error_vs_time(comparison: dict, path: Path, group: str = "non_toppling") -> None:
+CURVE_MIN_SHARE = 0.25  # error-vs-time plots stop where fewer than this share of the sequences still run
+
+
+def curve_end(count: np.ndarray, min_share: float = CURVE_MIN_SHARE) -> int:
+    """Steps to plot: up to the last step where at least ``min_share`` of the sequences still run."""
+    count = np.asarray(count, dtype=float)
+    if not len(count) or count.max() <= 0:
+        return len(count)
+    return int(np.flatnonzero(count >= min_share * count.max()).max()) + 1
+
+
+def plot_error_vs_time(comparison: dict, path: Path, group: str = "non_toppling", min_share: float = CURVE_MIN_SHARE) -> None:
+    """Median accumulated position and rotation error per step (interquartile band) of the model and the
+    baselines, cut where fewer than ``min_share`` of the sequences still run: beyond that the curve shows
+    which few long sequences remain, not how errors grow. The cut is stated on the plot."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    notes = set()
+    tops: dict[int, list[float]] = {0: [], 1: []}  # per panel, each predictor's highest upper quartile
     for name, result in comparison["results"].items():
         curves = result["curves"].get(group) or result["curves"]["all"]
-        t = np.arange(len(curves["position_m"])) / result["rate_hz"]
-        axes[0].plot(t, np.array(curves["position_m"], dtype=float), label=name)
-        axes[1].plot(t, np.array(curves["rotation_deg"], dtype=float), label=name)
+        count = np.asarray(curves["count"], dtype=float)
+        end = curve_end(count, min_share)
+        t = np.arange(end) / result["rate_hz"]
+        if end < len(count):
+            notes.add(f"cut at {t[-1]:.2f} s: beyond it fewer than {min_share:.0%} of the {int(count.max())} sequences still run")
+        for ax, key in zip(axes, ("position_m", "rotation_deg")):
+            if f"{key}_median" in curves:  # reports written before the quartiles show means
+                line, = ax.plot(t, np.array(curves[f"{key}_median"][:end], dtype=float), label=name)
+                upper = np.array(curves[f"{key}_q75"][:end], dtype=float)
+                ax.fill_between(t, np.array(curves[f"{key}_q25"][:end], dtype=float), upper, color=line.get_color(),
+                                alpha=0.15, lw=0)
+                tops[0 if key == "position_m" else 1].append(float(np.nanmax(upper)) if np.isfinite(upper).any() else 0.0)
+            else:
+                ax.plot(t, np.array(curves[key][:end], dtype=float), label=f"{name} (mean)")
     axes[0].set(xlabel="time (s)", ylabel="position error (m)", title=f"Roll-out position error ({group})")
     axes[1].set(xlabel="time (s)", ylabel="rotation error (deg)", title=f"Roll-out rotation error ({group})")
-    axes[0].legend()
-    fig.tight_layout()
+    for i, highest in tops.items():
+        # The worst predictor (usually staying put) may leave the axis, so the others stay readable.
+        if len(highest) >= 3 and sorted(highest)[-1] > 2 * sorted(highest)[-2] > 0:
+            axes[i].set_ylim(0, 1.3 * sorted(highest)[-2])
+            notes.add("the worst predictor's curve leaves the axis")
+    axes[0].legend(fontsize=8)
+    caption = "median over sequences, band: interquartile range"
+    if notes:
+        caption += "; " + "; ".join(sorted(notes))
+    fig.text(0.5, 0.01, caption, ha="center", fontsize=8, color="#444")
+    fig.tight_layout(rect=(0, 0.04, 1, 1))
     fig.savefig(path, dpi=100)
     plt.close(fig)
 

@@ -127,3 +127,13 @@ def test_error_curve_is_the_mean_over_sequences_still_running():
     mean, count = M.error_curve(np.ones((1, 2)), np.array([[True, False]]))
     assert np.isnan(mean[1]) and count[1] == 0
     np.testing.assert_allclose(M.position_error_curve(np.array([[[0, 3, 4.0]]]), np.zeros((1, 1, 3))), [[5.0]])
+
+
+def test_error_quantiles_are_over_the_sequences_still_running():
+    errors = np.array([[1.0, 2.0, 9.0], [3.0, np.nan, 5.0], [5.0, 4.0, 7.0], [7.0, 6.0, 1.0]])
+    valid = np.array([[True, True, False], [True, True, True], [True, True, True], [True, True, False]])
+    q = M.error_quantiles(errors, valid)
+    np.testing.assert_allclose(q[:, 0], np.quantile([1, 3, 5, 7], [0.25, 0.5, 0.75]))
+    np.testing.assert_allclose(q[:, 1], np.quantile([2, 4, 6], [0.25, 0.5, 0.75]))  # the NaN does not count
+    np.testing.assert_allclose(q[:, 2], np.quantile([5, 7], [0.25, 0.5, 0.75]))  # ended sequences do not count
+    assert np.isnan(M.error_quantiles(np.ones((2, 2)), np.array([[True, False], [True, False]]))[:, 1]).all()

@@ -2,6 +2,8 @@
 
 import json
 
+import numpy as np
+
 from physdyn.eval.evaluate import compare
 from physdyn.eval.report import write_report
 
@@ -44,3 +46,15 @@ def test_unknown_friction_skips_the_coulomb_baseline_and_says_why(tiny_store):
     comparison = compare("stay_put", store)
     assert "coulomb_slide" not in comparison["results"]
     assert "--friction" in comparison["verdict"] and "friction" in comparison["skipped_baselines"]["coulomb_slide"]
+
+
+def test_error_curves_stop_where_few_sequences_still_run(tiny_store):
+    from physdyn.eval.report import curve_end
+
+    assert curve_end([8, 8, 6, 4, 2, 1, 1]) == 5  # steps 0-4: 2 of 8 is the last count of at least a quarter
+    assert curve_end([8, 8, 6, 4, 2, 1, 1], min_share=0.5) == 4 and curve_end([8, 8, 6, 4, 2, 1, 1], 0.1) == 7
+    curves = compare("stay_put", tiny_store, baselines=())["results"]["stay_put"]["curves"]["non_toppling"]
+    median, q25, q75 = (np.asarray(curves[f"position_m_{k}"], float) for k in ("median", "q25", "q75"))
+    ok = np.isfinite(median)
+    assert ok[:curve_end(curves["count"])].all()
+    assert (q25[ok] <= median[ok] + 1e-12).all() and (median[ok] <= q75[ok] + 1e-12).all()
