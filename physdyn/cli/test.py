@@ -34,6 +34,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import sys
+
     from physdyn.errors import PhysdynError
     from physdyn.eval.baselines import load_checkpoint
     from physdyn.eval.evaluate import compare
@@ -48,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
         raise PhysdynError(f"{args.checkpoint} does not record its store; pass --data STORE")
     baselines = ["stay_put", "coulomb_slide", *(load_checkpoint(c) for c in args.baseline_checkpoint)]
     result = compare(model, data, baselines, split=args.split, warm_start=args.warm_start, categories=args.categories,
-                     keep_trajectories=not args.no_viewer)
+                     keep_trajectories=not args.no_viewer, progress=lambda line: print(f"test: {line}", file=sys.stderr, flush=True))
     kept = result["results"][result["model"]].pop("trajectories", None)
     paths = write_report(result, args.out, overwrite=args.overwrite)
     if kept is not None:

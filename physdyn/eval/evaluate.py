@@ -9,7 +9,7 @@ non-toppling sequences; toppling and all sequences are reported too, and per cat
 
 from __future__ import annotations
 
-from typing import Any, Iterable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -277,18 +277,23 @@ def evaluate(model_or_baseline: Any, store: StoreData | str, split: str = "test"
 
 def compare(model: Any, store: StoreData | str, baselines: Sequence[Any] = ("stay_put", "coulomb_slide"),
             split: str = "test", warm_start: int = 0, categories: Sequence[str] | None = None,
-            keep_trajectories: bool = False, **kwargs: Any) -> dict[str, Any]:
+            keep_trajectories: bool = False, progress: Callable[[str], None] | None = None, **kwargs: Any) -> dict[str, Any]:
     """``evaluate`` for a model and each baseline (names, ``Baseline`` objects or checkpoints, e.g. the
     MLP baseline). Returns ``results`` (name -> evaluation), ``table`` (one row per predictor: headline
     numbers) and ``verdict``: whether the model beats Coulomb sliding on the median final position error of
-    the non-toppling sequences. ``keep_trajectories``: the model's result keeps its roll-outs (``evaluate``)."""
+    the non-toppling sequences. ``keep_trajectories``: the model's result keeps its roll-outs (``evaluate``).
+    ``progress`` receives one line as each predictor starts (the CLI prints it: a long evaluation is not silent)."""
     store = load_store(store) if isinstance(store, str) else store
     results: dict[str, dict] = {}
+    say = progress or (lambda line: None)
+    total = 1 + len(baselines)
+    say(f"evaluating the model on the {split} split of {store.url} (1 of {total})")
     model_result = evaluate(model, store, split, warm_start, categories, keep_trajectories=keep_trajectories, **kwargs)
     model_name = model_result["predictor"]
     results[model_name] = model_result
     skipped: dict[str, str] = {}
-    for spec in baselines:
+    for number, spec in enumerate(baselines, start=2):
+        say(f"evaluating {spec if isinstance(spec, str) else predictor_name(spec, 'a baseline')} ({number} of {total})")
         if spec == "coulomb_slide" and np.isnan(store.friction).any():
             # Imported real trials may not know their friction: a NaN baseline would read as "no data".
             skipped["coulomb_slide"] = ("the store records no friction coefficient (sims/friction is NaN); "

@@ -13,6 +13,7 @@ import json
 import logging
 import os
 import shutil
+import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -240,18 +241,73 @@ def _read_checkpoint(path: Path) -> dict:
     return ckpt
 
 
-def _progress_bar():
-    from lightning.pytorch.callbacks import TQDMProgressBar
+def _progress_bar(stream=None):
+    """Lightning's bar on a terminal; elsewhere (a log file, CI) one plain line every ``PLAIN_EVERY_S``
+    seconds and after each validation, instead of hundreds of carriage-return updates."""
+    import sys
 
-    class ProgressBar(TQDMProgressBar):
-        """Lightning's bar without the logger version ("v_num"), which means nothing for a named run."""
+    from lightning.pytorch.callbacks import ProgressBar, TQDMProgressBar
 
-        def get_metrics(self, trainer, pl_module):
-            metrics = super().get_metrics(trainer, pl_module)
-            metrics.pop("v_num", None)
-            return metrics
+    stream = stream or sys.stderr
+    if hasattr(stream, "isatty") and stream.isatty():
+        class TerminalBar(TQDMProgressBar):
+            """Lightning's bar without the logger version ("v_num"), which means nothing for a named run."""
 
-    return ProgressBar()
+            def get_metrics(self, trainer, pl_module):
+                metrics = super().get_metrics(trainer, pl_module)
+                metrics.pop("v_num", None)
+                return metrics
+
+        return TerminalBar()
+
+    class PlainLines(ProgressBar):
+        def __init__(self):
+            super().__init__()
+            self._enabled, self._last, self._start, self._first = True, 0.0, 0.0, 0
+
+        def disable(self):
+            self._enabled = False
+
+        def enable(self):
+            self._enabled = True
+
+        def on_train_start(self, trainer, pl_module):
+            self._start = self._last = time.monotonic()
+            self._first = trainer.global_step
+
+        def _line(self, trainer, extra: str = "") -> None:
+            if not self._enabled or trainer.sanity_checking:
+                return
+            step, total = trainer.global_step, trainer.max_steps
+            rate = (step - self._first) / max(time.monotonic() - self._start, 1e-9)
+            parts = [f"fit: step {step}" + (f"/{total} ({100 * step / total:.0f} %)" if total and total > 0 else "")]
+            loss = trainer.callback_metrics.get("train/loss")
+            if loss is not None:
+                parts.append(f"train/loss {float(loss):.4g}")
+            if extra:
+                parts.append(extra)
+            if rate > 0:
+                parts.append(f"{rate:.2f} steps/s")
+                if total and total > 0 and step < total:
+                    parts.append(f"about {(total - step) / rate / 60:.1f} min left")
+            print(", ".join(parts), file=stream, flush=True)
+            self._last = time.monotonic()
+
+        def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx):
+            if time.monotonic() - self._last >= PLAIN_EVERY_S:
+                self._line(trainer)
+
+        def on_validation_end(self, trainer, pl_module):
+            val = trainer.callback_metrics.get("val/loss")
+            self._line(trainer, "" if val is None else f"val/loss {float(val):.4g}")
+
+        def on_train_end(self, trainer, pl_module):
+            self._line(trainer, "done")
+
+    return PlainLines()
+
+
+PLAIN_EVERY_S = 30.0
 
 
 # Lightning prints these on every run; over a 44-run `physdyn reproduce` log they bury the progress lines.

@@ -164,11 +164,16 @@ def test_cli_fit_output_is_free_of_lightning_noise(tiny_store, tmp_path):
     # Lightning's cloud-logger tip and a torch deprecation warning it triggers used to print on every run.
     from physdyn.models.training import LIGHTNING_NOISE
 
-    proc = run_cli("fit", "--config", str(QUICKSTART), *shrunk_overrides(tiny_store, tmp_path / "r"))
+    proc = run_cli("fit", "--config", str(QUICKSTART), *shrunk_overrides(tiny_store, tmp_path / "r", "progress_bar=true"))
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "r" / "finished.json").is_file()
     for text in LIGHTNING_NOISE:
         assert text not in proc.stdout + proc.stderr, text
+    # Off a terminal (a pipe here, a log or CI elsewhere): plain progress lines, no carriage-return bar.
+    assert "\r" not in proc.stderr
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("fit: step")]
+    assert any("val/loss" in line for line in lines) and any(", done," in line for line in lines)
+    assert all(line.endswith("steps/s") or line.endswith("min left") for line in lines), lines
 
 
 def test_bad_config_is_a_one_line_error_naming_the_key(tiny_store, tmp_path):
