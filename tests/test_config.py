@@ -1,5 +1,7 @@
 """Config loading: presets compose, overrides are typed, switching a component drops the old one's params."""
 
+from pathlib import Path
+
 import pytest
 
 from physdyn.config import DataConfig, load_config
@@ -33,3 +35,41 @@ def test_malformed_yaml_is_a_one_line_error(tmp_path):
     listed.write_text("- 1\n- 2\n")
     with pytest.raises(ConfigError, match="must be a mapping"):
         load_config(DataConfig, listed)
+
+
+def test_presets_are_found_by_name_and_by_source_path_from_anywhere(tmp_path, monkeypatch, capsys):
+    from physdyn.cli import main
+    from physdyn.config import PRESETS, list_presets, preset_path
+
+    monkeypatch.chdir(tmp_path)  # outside the source tree, as after a plain `pip install`
+    by_name = preset_path("quickstart", "experiment")
+    assert by_name == PRESETS / "experiment" / "quickstart.yaml"
+    assert preset_path("configs/experiment/quickstart.yaml", "experiment").read_text() == by_name.read_text()
+    assert load_experiment_config(by_name).name == "quickstart"  # its defaults (../model, ../trainer) resolve
+    assert load_config(DataConfig, preset_path("quickstart", "data")).rate_hz == 15.0
+    with pytest.raises(ConfigError, match="neither a config file nor a data preset; presets: .*quickstart"):
+        preset_path("quikstart", "data")
+    mine = tmp_path / "configs" / "data" / "quickstart.yaml"  # a user's own file of that name wins
+    mine.parent.mkdir(parents=True)
+    mine.write_text("seed: 7\n")
+    assert preset_path("configs/data/quickstart.yaml", "data") == Path("configs/data/quickstart.yaml")
+    listed = list_presets()
+    assert {"quickstart", "speakers"} <= {name for name, _ in listed["data"]}
+    assert all(summary for entries in listed.values() for _, summary in entries)  # every preset says what it is
+    assert main(["configs", "experiment"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("experiment (physdyn fit --config NAME):") and "quickstart" in out and "data (" not in out
+
+
+@pytest.mark.slow  # builds a wheel (a few seconds)
+def test_the_wheel_ships_every_preset_and_the_viewer_script(tmp_path):
+    import subprocess
+    import sys
+    import zipfile
+
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", str(REPO),
+                    "-w", str(tmp_path)], check=True, capture_output=True, timeout=300)
+    names = set(zipfile.ZipFile(next(tmp_path.glob("physdyn-*.whl"))).namelist())
+    for preset in (REPO / "configs").glob("*/*.yaml"):
+        assert f"physdyn/presets/{preset.parent.name}/{preset.name}" in names, preset
+    assert "physdyn/eval/viewer.js" in names and "physdyn/assets/bundled.ckpt" in names

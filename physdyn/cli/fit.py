@@ -27,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--config", metavar="FILE", help="experiment YAML, e.g. configs/experiment/quickstart.yaml")
+    p.add_argument("--config", metavar="FILE", help="experiment: a preset name (quickstart; `physdyn configs experiment`) or a YAML file, e.g. configs/experiment/quickstart.yaml")
     p.add_argument("--resume", action="store_true", help="continue the run in out_dir from its last.ckpt")
     p.add_argument("--overwrite", action="store_true", help="replace an existing run directory")
     p.add_argument("overrides", nargs="*", metavar="key=value", help="config overrides (OmegaConf dotlist)")
@@ -40,7 +40,9 @@ def run(args: argparse.Namespace) -> int:
 
     if args.resume and args.overwrite:
         args.parser.error("--resume and --overwrite exclude each other")
-    config = load_experiment_config(args.config, split_overrides(args.parser, args))
+    from physdyn.config import preset_path
+
+    config = load_experiment_config(args.config and preset_path(args.config, "experiment"), split_overrides(args.parser, args))
     result = fit(config, resume=args.resume, overwrite=args.overwrite)
     from physdyn.models.training import is_global_zero_process
 

@@ -36,7 +36,9 @@ def run(args: argparse.Namespace) -> int:
     from physdyn.models.pretrain import load_pretrain_config, pretrain
     from physdyn.models.training import is_global_zero_process
 
-    config = load_pretrain_config(args.config, split_overrides(args.parser, args))
+    from physdyn.config import preset_path
+
+    config = load_pretrain_config(args.config and preset_path(args.config, "experiment"), split_overrides(args.parser, args))
     result = pretrain(config, overwrite=args.overwrite)
     if is_global_zero_process():
         acc = result.metrics.get("val/acc")

@@ -19,7 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         ),
         epilog="example: physdyn simulate --config configs/data/quickstart.yaml --out data/quickstart.zarr --workers 2",
     )
-    p.add_argument("--config", required=True, help="data preset YAML, e.g. configs/data/quickstart.yaml")
+    p.add_argument("--config", required=True, help="data preset: a name (quickstart; `physdyn configs data`) or a YAML file, e.g. configs/data/quickstart.yaml")
     p.add_argument("--out", required=True, help="store to write: a path or an fsspec URL (s3://..., file://...)")
     p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
                    help="worker processes, one PyBullet client each (default: %(default)s)")
@@ -48,10 +48,10 @@ def clamp_workers(workers: int, local: bool = True) -> int:
 
 def run(args: argparse.Namespace) -> int:
     from physdyn.cli import split_overrides
-    from physdyn.config import DataConfig, load_config
+    from physdyn.config import DataConfig, load_config, preset_path
     from physdyn.sim.generate import generate_dataset
 
-    cfg = load_config(DataConfig, args.config, split_overrides(args.parser, args))
+    cfg = load_config(DataConfig, preset_path(args.config, "data"), split_overrides(args.parser, args))
     workers = clamp_workers(args.workers, local=args.executor == "process")
     report = generate_dataset(cfg, args.out, workers=workers, executor=args.executor,
                               resume=args.resume, overwrite=args.overwrite, progress=not args.quiet)

@@ -34,13 +34,12 @@ from typing import Any, Callable, Dict, List, Sequence
 
 import numpy as np
 
-from physdyn.config import load_config, to_dict
+from physdyn.config import PRESETS, load_config, to_dict
 from physdyn.errors import ConfigError, PhysdynError
 from physdyn.eval.report import UNITS
 from physdyn.eval.report import fmt_number as _num
 
-REPO = Path(__file__).resolve().parents[2]
-CONFIGS = REPO / "configs"
+CONFIGS = PRESETS  # the shipped presets: a plain `pip install` reproduces too
 SCALES_DIR = CONFIGS / "reproduce"
 SCALES = ("tiny", "cpu", "paper")
 CATEGORIES = ("primitives", "bottles", "mugs", "trashcans", "speakers")

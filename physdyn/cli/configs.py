@@ -1,0 +1,41 @@
+"""`physdyn configs`: the presets shipped with physdyn, usable by name with --config."""
+
+from __future__ import annotations
+
+import argparse
+
+ORDER = 95
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "configs",
+        help="list the shipped presets (use them by name: --config quickstart)",
+        description=("List the presets shipped inside the package (the repository's configs/ folder). Pass a "
+                     "name to the command of its kind: `physdyn simulate --config quickstart`, `physdyn fit "
+                     "--config quickstart`, `physdyn reproduce --scale tiny`; or copy a file to start your own "
+                     "(--path prints where they are)."),
+    )
+    p.add_argument("kind", nargs="?", choices=["data", "experiment", "model", "trainer", "reproduce"],
+                   help="only this kind")
+    p.add_argument("--path", action="store_true", help="print the folder holding the presets and exit")
+    p.set_defaults(func=run, parser=p)
+
+
+USED_BY = {"data": "physdyn simulate --config NAME", "experiment": "physdyn fit --config NAME",
+           "model": "defaults of experiment presets", "trainer": "defaults of experiment presets",
+           "reproduce": "physdyn reproduce --scale NAME"}
+
+
+def run(args: argparse.Namespace) -> int:
+    from physdyn.config import PRESETS, list_presets
+
+    if args.path:
+        print(PRESETS.resolve())
+        return 0
+    for kind, entries in list_presets(args.kind).items():
+        print(f"{kind} ({USED_BY[kind]}):")
+        width = max((len(name) for name, _ in entries), default=0)
+        for name, summary in entries:
+            print(f"  {name.ljust(width)}  {summary}")
+    return 0
