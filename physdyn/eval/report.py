@@ -59,52 +59,75 @@ def markdown(comparison: dict) -> str:
     return "\n".join(lines)
 
 
-CURVE_MIN_SHARE = 0.25  # error-vs-time plots stop where fewer than this share of the sequences still run
+CURVE_MIN_SHARE = 0.25  # error-vs-time plots stop where fewer than this share of the sequences still run...
+CURVE_MIN_SEQUENCES = 10  # ...or fewer than this many (a smaller set is plotted while all of it runs)
 
 
-def curve_end(count: np.ndarray, min_share: float = CURVE_MIN_SHARE) -> int:
-    """Steps to plot: up to the last step where at least ``min_share`` of the sequences still run."""
+def curve_end(count: Any, min_share: float = CURVE_MIN_SHARE, min_sequences: int = CURVE_MIN_SEQUENCES) -> int:
+    """Steps to plot of an error curve with ``count`` sequences running at each step: up to the first step
+    where fewer than max(min_share x count[0], min_sequences) still run, beyond which a mean or median
+    describes which few long sequences remain rather than how errors grow."""
     count = np.asarray(count, dtype=float)
-    if not len(count) or count.max() <= 0:
+    if not len(count) or count[0] <= 0:
         return len(count)
-    return int(np.flatnonzero(count >= min_share * count.max()).max()) + 1
+    short = np.flatnonzero(count < min(max(min_share * count[0], min_sequences), count[0]))
+    return int(short[0]) if len(short) else len(count)
 
 
-def plot_error_vs_time(comparison: dict, path: Path, group: str = "non_toppling", min_share: float = CURVE_MIN_SHARE) -> None:
+def draw_error_curves(axes: Any, label: str, curves: dict, rate_hz: float, end: int) -> list[float]:
+    """Position and rotation error of one predictor on two axes: the median with the interquartile band
+    (the mean for results written before the quartiles). Returns each panel's highest upper quartile."""
+    t = np.arange(end) / rate_hz
+    tops = []
+    for ax, key in zip(axes, ("position_m", "rotation_deg")):
+        if f"{key}_median" in curves:
+            line, = ax.plot(t, np.array(curves[f"{key}_median"][:end], dtype=float), label=label)
+            upper = np.array(curves[f"{key}_q75"][:end], dtype=float)
+            ax.fill_between(t, np.array(curves[f"{key}_q25"][:end], dtype=float), upper, color=line.get_color(),
+                            alpha=0.15, lw=0)
+            tops.append(float(np.nanmax(upper)) if np.isfinite(upper).any() else 0.0)
+        else:
+            values = np.array(curves[key][:end], dtype=float)
+            ax.plot(t, values, label=f"{label} (mean)")
+            tops.append(float(np.nanmax(values)) if np.isfinite(values).any() else 0.0)
+    return tops
+
+
+def fit_error_axes(axes: Any, tops: list[list[float]]) -> bool:
+    """When one predictor (usually staying put) is more than twice as far off as the next, scale each axis
+    to the others so they stay readable. ``tops``: per predictor, its two panels' highest values."""
+    clipped = False
+    for i, ax in enumerate(axes):
+        highest = sorted(t[i] for t in tops)
+        if len(highest) >= 3 and highest[-1] > 2 * highest[-2] > 0:
+            ax.set_ylim(0, 1.3 * highest[-2])
+            clipped = True
+    return clipped
+
+
+def plot_error_vs_time(comparison: dict, path: Path, group: str = "non_toppling") -> None:
     """Median accumulated position and rotation error per step (interquartile band) of the model and the
-    baselines, cut where fewer than ``min_share`` of the sequences still run: beyond that the curve shows
-    which few long sequences remain, not how errors grow. The cut is stated on the plot."""
+    baselines, cut by ``curve_end`` (the cut is stated on the plot)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    notes = set()
-    tops: dict[int, list[float]] = {0: [], 1: []}  # per panel, each predictor's highest upper quartile
+    notes, tops = set(), []
     for name, result in comparison["results"].items():
         curves = result["curves"].get(group) or result["curves"]["all"]
-        count = np.asarray(curves["count"], dtype=float)
-        end = curve_end(count, min_share)
-        t = np.arange(end) / result["rate_hz"]
+        count = curves["count"]
+        end = curve_end(count)
         if end < len(count):
-            notes.add(f"cut at {t[-1]:.2f} s: beyond it fewer than {min_share:.0%} of the {int(count.max())} sequences still run")
-        for ax, key in zip(axes, ("position_m", "rotation_deg")):
-            if f"{key}_median" in curves:  # reports written before the quartiles show means
-                line, = ax.plot(t, np.array(curves[f"{key}_median"][:end], dtype=float), label=name)
-                upper = np.array(curves[f"{key}_q75"][:end], dtype=float)
-                ax.fill_between(t, np.array(curves[f"{key}_q25"][:end], dtype=float), upper, color=line.get_color(),
-                                alpha=0.15, lw=0)
-                tops[0 if key == "position_m" else 1].append(float(np.nanmax(upper)) if np.isfinite(upper).any() else 0.0)
-            else:
-                ax.plot(t, np.array(curves[key][:end], dtype=float), label=f"{name} (mean)")
+            notes.add(f"cut at {(end - 1) / result['rate_hz']:.2f} s: beyond it fewer than "
+                      f"{min(max(CURVE_MIN_SHARE * count[0], CURVE_MIN_SEQUENCES), count[0]):.0f} of the "
+                      f"{int(count[0])} sequences still run")
+        tops.append(draw_error_curves(axes, name, curves, result["rate_hz"], end))
+    if fit_error_axes(axes, tops):
+        notes.add("the worst predictor's curve leaves the axis")
     axes[0].set(xlabel="time (s)", ylabel="position error (m)", title=f"Roll-out position error ({group})")
     axes[1].set(xlabel="time (s)", ylabel="rotation error (deg)", title=f"Roll-out rotation error ({group})")
-    for i, highest in tops.items():
-        # The worst predictor (usually staying put) may leave the axis, so the others stay readable.
-        if len(highest) >= 3 and sorted(highest)[-1] > 2 * sorted(highest)[-2] > 0:
-            axes[i].set_ylim(0, 1.3 * sorted(highest)[-2])
-            notes.add("the worst predictor's curve leaves the axis")
     axes[0].legend(fontsize=8)
     caption = "median over sequences, band: interquartile range"
     if notes:

@@ -36,7 +36,7 @@ import numpy as np
 
 from physdyn.config import PRESETS, load_config, to_dict
 from physdyn.errors import ConfigError, PhysdynError
-from physdyn.eval.report import UNITS
+from physdyn.eval.report import CURVE_MIN_SEQUENCES, UNITS, curve_end, draw_error_curves
 from physdyn.eval.report import fmt_number as _num
 
 CONFIGS = PRESETS  # the shipped presets: a plain `pip install` reproduces too
@@ -668,17 +668,10 @@ def _section_runs(res: _Results) -> list[str]:
 
 # A curve's late steps average over the few sequences that are still moving (the longest slides), so its
 # tail would be one or two sequences' noise; curves stop once fewer than this many sequences remain.
-CURVE_MIN_SEQUENCES = 10
-
-
 def plotted_steps(curves: dict) -> int:
-    """How many leading steps of an error curve to plot: up to the first with too few sequences left (a set
-    smaller than CURVE_MIN_SEQUENCES is plotted while all of it is still moving)."""
-    count = np.asarray(curves.get("count") or [CURVE_MIN_SEQUENCES] * len(curves["position_m"]))
-    if count.size == 0:
-        return 0
-    short = np.flatnonzero(count < min(CURVE_MIN_SEQUENCES, int(count[0])))
-    return int(short[0]) if short.size else len(count)
+    """How many leading steps of an error curve to plot (``report.curve_end``, the test report's rule)."""
+    count = curves.get("count") or [CURVE_MIN_SEQUENCES] * len(curves["position_m"])
+    return curve_end(count)
 
 
 def _plot_curves(series: list[tuple[str, dict | None]], path: Path, title: str) -> bool:
@@ -693,15 +686,13 @@ def _plot_curves(series: list[tuple[str, dict | None]], path: Path, title: str) 
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
     for label, r in series:
         curves = r["curves"].get("non_toppling") or r["curves"]["all"]
-        n = plotted_steps(curves)
-        t = np.arange(n) / r["rate_hz"]
-        axes[0].plot(t, np.array(curves["position_m"][:n], dtype=float), label=label)
-        axes[1].plot(t, np.array(curves["rotation_deg"][:n], dtype=float), label=label)
+        draw_error_curves(axes, label, curves, r["rate_hz"], plotted_steps(curves))
     axes[0].set(xlabel="time (s)", ylabel="position error (m)", title=f"{title}: position")
     axes[1].set(xlabel="time (s)", ylabel="rotation error (deg)", title=f"{title}: rotation")
     axes[0].legend(fontsize=7)
-    fig.text(0.5, 0.01, f"mean over the sequences still moving at each time; a curve ends where fewer than "
-             f"{CURVE_MIN_SEQUENCES} remain", ha="center", fontsize=8, color="0.35")
+    fig.text(0.5, 0.01, f"median over the sequences still moving at each time (band: interquartile range); a "
+             f"curve ends where fewer than a quarter of them, or {CURVE_MIN_SEQUENCES}, remain", ha="center",
+             fontsize=8, color="0.35")
     fig.tight_layout(rect=(0, 0.04, 1, 1))
     fig.savefig(path, dpi=100)
     plt.close(fig)

@@ -51,8 +51,10 @@ def test_unknown_friction_skips_the_coulomb_baseline_and_says_why(tiny_store):
 def test_error_curves_stop_where_few_sequences_still_run(tiny_store):
     from physdyn.eval.report import curve_end
 
-    assert curve_end([8, 8, 6, 4, 2, 1, 1]) == 5  # steps 0-4: 2 of 8 is the last count of at least a quarter
-    assert curve_end([8, 8, 6, 4, 2, 1, 1], min_share=0.5) == 4 and curve_end([8, 8, 6, 4, 2, 1, 1], 0.1) == 7
+    count = [80, 80, 60, 40, 20, 10, 10]
+    assert curve_end(count) == 5  # steps 0-4: 20 of 80 is the last count of at least a quarter
+    assert curve_end(count, min_share=0.5) == 4 and curve_end(count, 0.1) == 7
+    assert curve_end([8, 8, 6, 4, 2]) == 2  # fewer than 10 sequences: plotted while all of them run
     curves = compare("stay_put", tiny_store, baselines=())["results"]["stay_put"]["curves"]["non_toppling"]
     median, q25, q75 = (np.asarray(curves[f"position_m_{k}"], float) for k in ("median", "q25", "q75"))
     ok = np.isfinite(median)

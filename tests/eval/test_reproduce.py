@@ -76,6 +76,7 @@ def test_error_curves_stop_where_too_few_sequences_remain():
     assert R.plotted_steps(curve([12, 12, 12])) == 3
     assert R.plotted_steps(curve([3, 3, 2, 1])) == 2  # a small set: plotted while all of it moves
     assert R.plotted_steps(curve([])) == 0
+    assert R.plotted_steps(curve([800, 600, 400, 200, 150])) == 4  # and at least a quarter of a large set (200)
 
 
 @pytest.mark.slow  # minutes-scale; CI runs it after the default suite
