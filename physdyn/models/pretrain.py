@@ -207,7 +207,7 @@ def pretrain(config: PretrainConfig, overwrite: bool = False) -> PretrainResult:
 
     cfg = config
     out_dir = run_directory(cfg)
-    prepare_run_directory(out_dir, resume=False, overwrite=overwrite, what="physdyn pretrain")
+    prepare_run_directory(out_dir, resume=False, overwrite=overwrite, what="physdyn pretrain", resumable=False)
     lightning.seed_everything(cfg.seed, workers=True, verbose=False)
     clouds = load_shape_clouds(cfg.data, cfg.seed)
     point_scale = float(np.linalg.norm(clouds.train_points, axis=-1).max()) or 1.0

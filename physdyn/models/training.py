@@ -133,8 +133,10 @@ def looks_like_a_run(out_dir: Path) -> bool:
     return "config.yaml" in names and all(n in RUN_ENTRIES or n.endswith((".json", ".ckpt", ".pt")) for n in names)
 
 
-def prepare_run_directory(out_dir: Path, resume: bool, overwrite: bool, what: str = "physdyn fit") -> None:
-    """Refuse to reuse a run directory unless asked; only the first process of a run touches it."""
+def prepare_run_directory(out_dir: Path, resume: bool, overwrite: bool, what: str = "physdyn fit",
+                          resumable: bool = True) -> None:
+    """Refuse to reuse a run directory unless asked; only the first process of a run touches it.
+    ``what`` (the command) and ``resumable`` (whether it has --resume) shape the advice in the errors."""
     if not is_global_zero_process():
         return
     if out_dir.exists() and any(out_dir.iterdir()):
@@ -152,6 +154,9 @@ def prepare_run_directory(out_dir: Path, resume: bool, overwrite: bool, what: st
                     f"{out_dir} holds a finished run; pass --overwrite to replace it, or choose another "
                     f"name=... or out_dir=..."
                 )
+            if not resumable:
+                raise PhysdynError(f"{out_dir} holds an earlier {what} run; pass --overwrite to start over, or "
+                                   f"choose another out_dir=...")
             raise PhysdynError(
                 f"{out_dir} holds an interrupted run; pass --resume to continue it or --overwrite to start over"
             )

@@ -288,3 +288,17 @@ def test_a_killed_fit_resumes_to_the_planned_step_and_keeps_its_history(tiny_sto
     assert json.loads((out / "finished.json").read_text())["global_step"] == 400
     steps = sorted({int(float(r["step"])) for r in csv.DictReader((out / "csv" / "metrics.csv").open()) if r["train/loss_step"]})
     assert steps[0] <= 1 and steps[-1] >= 390  # one history from the first step to the last, across the kill
+
+
+def test_a_command_without_resume_is_never_told_to_pass_it(tmp_path):
+    from physdyn.models.training import prepare_run_directory
+
+    run = tmp_path / "pre"
+    run.mkdir()
+    (run / "config.yaml").write_text("name: pre\n")  # an earlier, unfinished run
+    with pytest.raises(PhysdynError) as info:
+        prepare_run_directory(run, resume=False, overwrite=False, what="physdyn pretrain", resumable=False)
+    assert "--resume" not in str(info.value) and "--overwrite" in str(info.value) and "physdyn pretrain" in str(info.value)
+    with pytest.raises(PhysdynError, match="pass --resume to continue it"):
+        prepare_run_directory(run, resume=False, overwrite=False)
+    assert (run / "config.yaml").read_text() == "name: pre\n"
