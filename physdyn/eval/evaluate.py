@@ -115,7 +115,11 @@ def predict_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, truth: 
         k = min(int(warm_start), steps)
         warm = (truth["linear_velocity"][sl, 1:k + 1], truth["angular_velocity"][sl, 1:k + 1]) if k else None
         points = _model_points(store, sims[sl], predictor.num_points, rng)
-        parts.append(rollout(predictor, points, q0, p0, v0, w0, steps, warm))
+        classifier = getattr(predictor, "topple_classifier", None)
+        topple_points = None
+        if classifier is not None:  # its own cloud size, drawn from a stream of its own: the model's draws stay as they were
+            topple_points = _model_points(store, sims[sl], classifier.num_points, np.random.default_rng([seed, sl.start]))
+        parts.append(rollout(predictor, points, q0, p0, v0, w0, steps, warm, topple_points_body=topple_points))
     return _concat(parts)
 
 
@@ -286,6 +290,8 @@ def compare(model: Any, store: StoreData | str, baselines: Sequence[Any] = ("sta
     store = load_store(store) if isinstance(store, str) else store
     results: dict[str, dict] = {}
     say = progress or (lambda line: None)
+    # Bad input (a split, a category, a warm start) is refused before any progress line is printed.
+    check_compatible(resolve_predictor(model), store, select_sequences(store, split, categories), warm_start)
     total = 1 + len(baselines)
     say(f"evaluating the model on the {split} split of {store.url} (1 of {total})")
     model_result = evaluate(model, store, split, warm_start, categories, keep_trajectories=keep_trajectories, **kwargs)

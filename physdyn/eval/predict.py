@@ -331,12 +331,16 @@ class Predictor:
         bodies = self._bodies(meshes, scales)
         p0 = np.stack([initial_pose(body.spec, q) for body, q in zip(bodies, q0)])
         points = np.stack([body.points_body(self.num_points) for body in bodies])
+        classifier = getattr(self.model, "topple_classifier", None)
+        topple_points = None if classifier is None else np.stack(
+            [body.points_body(classifier.num_points or DEFAULT_NUM_POINTS) for body in bodies])
         results: list[dict[str, Any] | None] = [None] * R
         for T in sorted(set(steps)):
             same = np.flatnonzero(np.asarray(steps) == T)
             for lo in range(0, len(same), int(chunk_size)):
                 idx = same[lo : lo + int(chunk_size)]
-                rolled = rollout(self.model, points[idx], q0[idx], p0[idx], v0[idx], w0[idx], T - 1)
+                rolled = rollout(self.model, points[idx], q0[idx], p0[idx], v0[idx], w0[idx], T - 1,
+                                 topple_points_body=None if topple_points is None else topple_points[idx])
                 for b, r in enumerate(idx):
                     out = rolled.sequence(b)
                     probability = out["topple_probability"]

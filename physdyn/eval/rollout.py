@@ -121,6 +121,7 @@ def rollout(
     steps: int,
     warm_start_velocities: tuple[np.ndarray, np.ndarray] | None = None,
     stepwise: bool = False,
+    topple_points_body: np.ndarray | None = None,
 ) -> RolloutResult:
     """Roll a predictor out for ``steps`` transitions from the state at step 0, B sequences at once.
 
@@ -133,6 +134,8 @@ def rollout(
     velocities are these observations; position and orientation are always the model's integrated ones.
     A model with ``rollout_changes`` (``DynamicsModel``) runs the loop in torch; ``stepwise=True`` forces
     the reference loop through ``step`` (the same numbers to float32 precision; tests compare them).
+    A model with a ``topple_classifier`` (``physdyn fit-topple``) reports its per-step probabilities
+    instead of the head's, from ``topple_points_body`` (B, N', 3) (default: ``points_body``).
     """
     if steps < 0:
         raise ValueError(f"steps must be >= 0, got {steps}")
@@ -160,6 +163,10 @@ def rollout(
     probability = None
     if topple or (steps == 0 and getattr(model, "predicts_topple", False)):
         probability = np.concatenate([np.zeros((B, 1)), np.stack(topple, axis=1) if topple else np.zeros((B, 0))], axis=1)
+    classifier = getattr(model, "topple_classifier", None)
+    if classifier is not None:
+        cloud = points if topple_points_body is None else world_oriented_points(_numpy(topple_points_body), q0)
+        probability = classifier.predict(cloud, _numpy(lin_vel0).reshape(B, 3), _numpy(ang_vel0).reshape(B, 3), steps)
     return RolloutResult(**states, topple_probability=probability, **deltas, fed_linear_velocity=fed_v,
                          fed_angular_velocity=fed_w)
 

@@ -140,12 +140,22 @@ class DynamicsModel(LightningModule):
         self.prior_dt = 1.0 / float(info.get("rate_hz", 15.0))
         self.prior_friction = float(info.get("friction", 0.25))
         self.prior_gravity = float(info.get("gravity", 9.81))
+        # Whether the sequence topples, from step-0 features (`physdyn fit-topple`); None: the head's rule.
+        self.topple_classifier = None
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         # Checkpoints from before per-channel normalisation have no shift buffers: their shift is zero.
         state = checkpoint.get("state_dict", {})
         for name in ("change_shift", "velocity_shift"):
             state.setdefault(name, torch.zeros_like(getattr(self, name)))
+        if checkpoint.get("topple_classifier"):
+            from physdyn.models.topple_classifier import ToppleClassifier
+
+            self.topple_classifier = ToppleClassifier.from_dict(checkpoint["topple_classifier"])
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        if self.topple_classifier is not None:
+            checkpoint["topple_classifier"] = self.topple_classifier.to_dict()
 
     # ------------------------------------------------------------------ facts
     @property

@@ -15,7 +15,8 @@ from physdyn.errors import PhysdynError
 from physdyn.files import atomic_output
 
 # What DynamicsModel.load_from_checkpoint needs; the optimiser, loops and callbacks are only for resuming.
-KEEP = ("state_dict", "hyper_parameters", "hparams_name", "pytorch-lightning_version", "epoch", "global_step")
+KEEP = ("state_dict", "hyper_parameters", "hparams_name", "pytorch-lightning_version", "epoch", "global_step",
+        "topple_classifier")
 
 
 def export_checkpoint(src: str | Path, dst: str | Path, overwrite: bool = False) -> Path:

@@ -224,3 +224,28 @@ def test_the_torch_rollout_gives_the_reference_loops_numbers(tiny_checkpoint, st
                     "fed_linear_velocity", *DELTA_KEYS):
             np.testing.assert_allclose(getattr(fast, key), getattr(slow, key), rtol=1e-5, atol=1e-5, err_msg=key)
     assert np.abs(fast.com_position[:, -1] - fast.com_position[:, 0]).max() > 1e-3  # it moved: not a trivial match
+
+
+def test_fit_topple_puts_a_classifier_in_the_checkpoint_and_roll_outs_use_it(tiny_checkpoint, tiny_store, store, tmp_path, capsys):
+    from physdyn.cli import main
+    from physdyn.eval import metrics as M
+    from physdyn.models.topple_classifier import store_features
+
+    out = tmp_path / "topple.ckpt"
+    assert main(["fit-topple", "--checkpoint", tiny_checkpoint, "--data", tiny_store, "--out", str(out)]) == 0
+    assert "validation accuracy" in capsys.readouterr().out
+    assert main(["fit-topple", "--checkpoint", tiny_checkpoint, "--out", str(out)]) == 2  # kept without --overwrite
+    assert "already exists" in capsys.readouterr().err
+    plain, model = load_checkpoint(tiny_checkpoint), load_checkpoint(out)
+    assert plain.topple_classifier is None and model.topple_classifier is not None
+    clf = model.topple_classifier
+    sims = select_sequences(store, "test")
+    result = evaluate(model, store, "test", keep_trajectories=True)
+    kept = result["trajectories"]
+    # the roll-out's per-step probabilities are the classifier's: P(topples) x F(t), from the full cloud
+    p = clf.probability(store_features(store, sims, None, clf.friction))
+    np.testing.assert_allclose(kept["predicted"].topple_probability, clf.per_step(p, kept["truth"]["valid"].shape[1]), atol=1e-12)
+    decided = M.predicted_topple(kept["predicted"].topple_probability, kept["truth"]["state_valid"])
+    assert result["topple"]["accuracy"] == pytest.approx(np.mean(decided == store.toppled[sims].astype(bool)))
+    # the trajectories themselves are the model's, unchanged
+    np.testing.assert_allclose(kept["predicted"].com_position, evaluate(plain, store, "test", keep_trajectories=True)["trajectories"]["predicted"].com_position)

@@ -1,0 +1,69 @@
+"""`physdyn fit-topple`: give a trained model a classifier of whether a push topples the object."""
+
+from __future__ import annotations
+
+import argparse
+
+ORDER = 31
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "fit-topple",
+        help="fit a step-0 topple classifier into a checkpoint (seconds; raises topple accuracy)",
+        description=(
+            "Fit a logistic regression that says, from the point cloud in its step-0 orientation and the "
+            "step-0 velocities, whether the push topples the object (footprint edges, tipping energies, "
+            "kinetic energies: physdyn/models/topple_classifier.py), on the store's training split, with "
+            "its threshold chosen on the validation split; write the checkpoint with it to --out. Roll-outs "
+            "of that checkpoint then report its per-step topple probabilities instead of the head's. "
+            "Why and how well: docs/model-card.md (Toppling)."
+        ),
+        epilog="example: physdyn fit-topple --checkpoint runs/quickstart/best.ckpt --out runs/quickstart/best_topple.ckpt",
+    )
+    p.add_argument("--checkpoint", required=True, help="a .ckpt written by `physdyn fit`")
+    p.add_argument("--data", help="store to fit on (default: the store the model was trained on)")
+    p.add_argument("--out", required=True, help="the checkpoint to write (.ckpt; may be --checkpoint with --overwrite)")
+    p.add_argument("--num-points", type=int, help="cloud size the classifier reads (default: all the store's points)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out")
+    p.set_defaults(func=run, parser=p)
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    import torch
+
+    from physdyn.data.store import load_store
+    from physdyn.errors import PhysdynError
+    from physdyn.eval.baselines import load_checkpoint
+    from physdyn.files import atomic_output, check_writable
+    from physdyn.models.topple_classifier import fit_topple_classifier
+
+    out = Path(args.out)
+    if out.suffix != ".ckpt":
+        raise PhysdynError(f"--out {out}: write a .ckpt file")
+    if out.exists() and not args.overwrite:
+        raise PhysdynError(f"--out {out} already exists; pass --overwrite to replace it or choose another --out")
+    check_writable(out, "--out")
+    if args.num_points is not None and args.num_points < 16:
+        raise PhysdynError(f"--num-points must be at least 16, got {args.num_points}")
+    model = load_checkpoint(args.checkpoint)  # checks that it is a physdyn checkpoint
+    data = args.data or model.data_info.get("store")
+    if not data:
+        raise PhysdynError(f"{args.checkpoint} does not record its store; pass --data STORE")
+    store = load_store(data)
+    if abs(float(model.data_info.get("rate_hz", store.rate_hz)) - store.rate_hz) > 1e-6:
+        raise PhysdynError(f"the model was trained at {model.data_info['rate_hz']:g} Hz and {data} is recorded at "
+                           f"{store.rate_hz:g} Hz; fit on a store of the model's rate")
+    classifier, report = fit_topple_classifier(store, args.num_points, friction=model.prior_friction)
+    raw = torch.load(args.checkpoint, map_location="cpu", weights_only=False)
+    raw["topple_classifier"] = classifier.to_dict()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_output(out, suffix=".ckpt") as tmp:
+        torch.save(raw, tmp)
+    print(f"topple classifier on {data}: validation accuracy {report['val_accuracy']:.3f} (always 'no': "
+          f"{report['val_majority']:.3f}), training {report['train_accuracy']:.3f}, over "
+          f"{report['train_sequences']} training sequences")
+    print(f"wrote {out}")
+    return 0

@@ -1,0 +1,220 @@
+"""Will it topple? A classifier of the whole sequence from what the model sees at step 0.
+
+Measured (docs/model-card.md, "Toppling"): the per-step topple head over a roll-out misses most topples,
+because roll-outs corrected from the contact prior hardly tilt and the head learns from the label of the
+next step; yet whether a push topples the object is nearly decided at step 0 (re-simulating perturbed
+pushes flips about 1 % of outcomes). So the sequence is classified from physics-shaped features of the
+point cloud in its step-0 orientation and the step-0 velocities:
+
+- the footprint (cloud points within 5 mm of the lowest one): its convex hull's area, the distance from the
+  centre of mass's ground projection to its edge along the travel, against it, along the direction the
+  top tips (horizontal spin), and to the nearest edge;
+- the centre-of-mass height h, the energy to tip over each of those edges g(sqrt(h^2 + e^2) - h), and
+  the kinetic energies (linear, rotational, and of the tilt about the tipping edge) against them;
+- extents, radius of gyration and inertia per unit mass estimated from the cloud (0.8 x its second
+  moments, as the contact prior does: the model never sees the mass properties).
+
+A logistic regression on the standardised features (fitted by Newton's method with a small ridge), its
+threshold chosen on the validation split and folded into the bias, so a probability >= 0.5 means
+"topples". Per step, the probability of having toppled by step t is P(topples) x F(t), F the share of
+the training split's toppling sequences that have toppled by step t.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+FOOTPRINT_DEPTH = 0.005  # m: cloud points this close to the lowest one form the footprint
+GRAVITY = 9.81
+INERTIA_SHAPE_FACTOR = 0.8  # a solid's second moments are ~0.8 of its surface points' (the contact prior's value)
+FEATURE_NAMES = (
+    "speed_xy", "v_z", "w_xy", "w_z", "w_tip_along_travel", "h_com", "foot_area", "foot_radius",
+    "edge_min", "edge_travel", "edge_back", "edge_tip", "extent_x", "extent_y", "extent_z", "gyration",
+    "inertia_xx", "inertia_yy", "inertia_zz", "h_over_edge_min", "h_over_edge_travel", "h_over_edge_tip",
+    "tip_energy_travel", "tip_energy_tip", "tip_energy_min", "kinetic_linear", "kinetic_rotation",
+    "kinetic_tilt", "tilt_ratio", "log_tilt_ratio", "travel_ratio", "friction_lever",
+)
+
+
+def _ray_to_hull(equations: np.ndarray, direction: np.ndarray) -> float:
+    """Distance from the origin to the hull's boundary along the unit ``direction`` (2D)."""
+    normal, offset = equations[:, :2], equations[:, 2]
+    along = normal @ direction
+    ok = along > 1e-12
+    return float(np.min(-offset[ok] / along[ok])) if ok.any() else 0.0
+
+
+def _unit(x: np.ndarray) -> np.ndarray:
+    n = float(np.linalg.norm(x))
+    return x / n if n > 1e-9 else np.array([1.0, 0.0])
+
+
+def topple_features(points: np.ndarray, linear_velocity: np.ndarray, angular_velocity: np.ndarray,
+                    friction: float = 0.25) -> np.ndarray:
+    """points (B, N, 3): the body's cloud in its step-0 world orientation, centre of mass at the origin;
+    velocities (B, 3) at step 0, world frame -> (B, len(FEATURE_NAMES)) float64."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    points = np.asarray(points, np.float64)
+    v0 = np.asarray(linear_velocity, np.float64).reshape(-1, 3)
+    w0 = np.asarray(angular_velocity, np.float64).reshape(-1, 3)
+    rows = np.empty((len(points), len(FEATURE_NAMES)))
+    for b, P in enumerate(points):
+        z = P[:, 2]
+        h = -float(z.min())
+        foot = P[z <= z.min() + FOOTPRINT_DEPTH, :2]
+        hull = None
+        if len(foot) >= 3:
+            try:
+                hull = ConvexHull(foot, qhull_options="QJ")
+            except QhullError:  # collinear points: a line contact, no area
+                hull = None
+        if hull is not None:
+            eq, area = hull.equations, float(hull.volume)
+            edge_min = float((-eq[:, 2]).min())
+            corners = foot[hull.vertices]
+        else:
+            eq, area, edge_min, corners = None, 0.0, 0.0, foot
+        vxy, wxy = v0[b, :2], w0[b, :2]
+        travel = _unit(vxy)
+        tip = _unit(np.array([wxy[1], -wxy[0]]))  # where the top goes under the horizontal spin
+        edge = (lambda d: _ray_to_hull(eq, d)) if eq is not None else (lambda d: 0.0)
+        e_travel, e_back, e_tip = edge(travel), edge(-travel), edge(tip)
+        extent = P.max(axis=0) - P.min(axis=0)
+        second = P.T @ P / len(P)
+        inertia = INERTIA_SHAPE_FACTOR * (np.trace(second) * np.eye(3) - second)  # per unit mass
+        tip_energy = lambda e: GRAVITY * (np.sqrt(h * h + e * e) - h)  # noqa: E731
+        w_xy = float(np.linalg.norm(wxy))
+        axis = np.array([wxy[0], wxy[1], 0.0]) / w_xy if w_xy > 1e-9 else np.array([1.0, 0.0, 0.0])
+        tilt_inertia = axis @ inertia @ axis + h * h + e_tip * e_tip  # about the tipping edge
+        kinetic_tilt = 0.5 * tilt_inertia * w_xy ** 2
+        kinetic_linear = 0.5 * float(v0[b] @ v0[b])
+        kinetic_rotation = 0.5 * float(w0[b] @ inertia @ w0[b])
+        e_tip_energy, e_travel_energy = tip_energy(e_tip), tip_energy(e_travel)
+        rows[b] = (
+            float(np.linalg.norm(vxy)), v0[b, 2], w_xy, w0[b, 2], float(np.array([wxy[1], -wxy[0]]) @ travel), h, area,
+            float(np.linalg.norm(corners, axis=1).max()) if len(corners) else 0.0,
+            edge_min, e_travel, e_back, e_tip, extent[0], extent[1], extent[2], float(np.sqrt(np.trace(second))),
+            inertia[0, 0], inertia[1, 1], inertia[2, 2],
+            h / max(edge_min, 1e-4), h / max(e_travel, 1e-4), h / max(e_tip, 1e-4),
+            e_travel_energy, e_tip_energy, tip_energy(edge_min), kinetic_linear, kinetic_rotation, kinetic_tilt,
+            kinetic_tilt / max(e_tip_energy, 1e-6), np.log(kinetic_tilt + 1e-6) - np.log(e_tip_energy + 1e-6),
+            (kinetic_linear + kinetic_rotation) / max(e_travel_energy, 1e-6), friction * h - e_travel,
+        )
+    return rows
+
+
+@dataclass
+class ToppleClassifier:
+    """Logistic regression over ``topple_features``; ``timing`` (S,) is F(t) for t = 0..S-1 steps."""
+
+    mean: np.ndarray
+    std: np.ndarray
+    weights: np.ndarray
+    bias: float
+    timing: np.ndarray
+    friction: float
+    rate_hz: float
+    num_points: int | None = None  # the cloud it was fitted on (None: all the store's points)
+
+    def probability(self, features: np.ndarray) -> np.ndarray:
+        """(B, F) -> (B,) probability that the sequence topples (0.5 is the chosen threshold)."""
+        z = ((np.asarray(features, np.float64) - self.mean) / self.std) @ self.weights + self.bias
+        return 1.0 / (1.0 + np.exp(-np.clip(z, -50, 50)))
+
+    def per_step(self, probability: np.ndarray, steps: int) -> np.ndarray:
+        """(B,) -> (B, steps + 1): the probability of having toppled by step t (0 at step 0)."""
+        t = np.arange(steps + 1)
+        share = self.timing[np.minimum(t, len(self.timing) - 1)]
+        return np.asarray(probability)[:, None] * share[None, :]
+
+    def predict(self, points_world: np.ndarray, linear_velocity: np.ndarray, angular_velocity: np.ndarray,
+                steps: int) -> np.ndarray:
+        features = topple_features(points_world, linear_velocity, angular_velocity, self.friction)
+        return self.per_step(self.probability(features), steps)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"mean": self.mean.tolist(), "std": self.std.tolist(), "weights": self.weights.tolist(),
+                "bias": float(self.bias), "timing": self.timing.tolist(), "friction": float(self.friction),
+                "rate_hz": float(self.rate_hz), "num_points": self.num_points, "features": list(FEATURE_NAMES)}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "ToppleClassifier":
+        if list(d.get("features", [])) != list(FEATURE_NAMES):
+            raise ValueError("the checkpoint's topple classifier was fitted on other features; refit it with "
+                             "`physdyn fit-topple`")
+        return cls(np.asarray(d["mean"]), np.asarray(d["std"]), np.asarray(d["weights"]), float(d["bias"]),
+                   np.asarray(d["timing"]), float(d["friction"]), float(d["rate_hz"]), d.get("num_points"))
+
+
+def logistic_regression(x: np.ndarray, y: np.ndarray, ridge: float = 1e-3, iterations: int = 50) -> tuple[np.ndarray, float]:
+    """Newton's method on the mean log-loss + ridge/2 |w|^2 (bias not penalised); x standardised."""
+    n, f = x.shape
+    a = np.concatenate([x, np.ones((n, 1))], axis=1)
+    theta = np.zeros(f + 1)
+    penalty = np.full(f + 1, ridge)
+    penalty[-1] = 0.0
+    for _ in range(iterations):
+        p = 1.0 / (1.0 + np.exp(-np.clip(a @ theta, -50, 50)))
+        grad = a.T @ (p - y) / n + penalty * theta
+        hess = (a * (p * (1 - p))[:, None]).T @ a / n + np.diag(penalty + 1e-9)
+        step = np.linalg.solve(hess, grad)
+        theta -= step
+        if np.abs(step).max() < 1e-8:
+            break
+    return theta[:-1], float(theta[-1])
+
+
+def best_threshold(probability: np.ndarray, label: np.ndarray) -> float:
+    """The threshold with the highest accuracy (the middle of the best run of candidates)."""
+    candidates = np.unique(np.concatenate([probability, [0.5]]))
+    accuracy = np.array([np.mean((probability >= c) == label) for c in candidates])
+    best = np.flatnonzero(accuracy == accuracy.max())
+    return float(candidates[best[len(best) // 2]])
+
+
+def store_features(store: Any, sims: np.ndarray, num_points: int | None, friction: float, seed: int = 0) -> np.ndarray:
+    """``topple_features`` of a store's simulations at step 0, from the cloud the model would see."""
+    from physdyn.data.windows import subsample_indices, world_oriented_points
+
+    sims = np.asarray(sims, dtype=np.int64)
+    first = store.start[sims]
+    points = store.points[store.shape_id[sims]]
+    index = subsample_indices(points.shape[1], num_points, np.random.default_rng(seed), len(sims))
+    if index is not None:
+        points = np.take_along_axis(points, index[..., None], axis=1)
+    world = world_oriented_points(points, store.orientation_xyzw[first])
+    return topple_features(world, store.linear_velocity[first], store.angular_velocity[first], friction)
+
+
+def fit_topple_classifier(store: Any, num_points: int | None = None, friction: float = 0.25, ridge: float = 1e-4,
+                          seed: int = 0) -> tuple[ToppleClassifier, dict[str, Any]]:
+    """Fit on the store's training split, choose the threshold on its validation split. Returns the
+    classifier and a report (accuracies on train and validation, counts). ``num_points``: the cloud size
+    (default: all the store's points; 1,024 points classify better than the 256 a CPU model sees)."""
+    from physdyn.errors import PhysdynError
+
+    train, val = np.flatnonzero(store.split == 0), np.flatnonzero(store.split == 1)
+    y_train, y_val = store.toppled[train].astype(float), store.toppled[val].astype(bool)
+    if y_train.min() == y_train.max() or not len(val):
+        raise PhysdynError(f"{store.url}: the topple classifier needs toppling and non-toppling training "
+                           "sequences and a validation split")
+    x_train = store_features(store, train, num_points, friction, seed)
+    mean, std = x_train.mean(axis=0), x_train.std(axis=0) + 1e-9
+    weights, bias = logistic_regression((x_train - mean) / std, y_train, ridge)
+    clf = ToppleClassifier(mean, std, weights, bias, np.array([0.0, 1.0]), friction, float(store.rate_hz), num_points)
+    p_val = clf.probability(store_features(store, val, num_points, friction, seed + 1))
+    threshold = best_threshold(p_val, y_val)
+    clf.bias -= float(np.log(threshold / (1 - threshold)))  # now 0.5 is the chosen threshold
+    steps = store.topple_step[train][store.toppled[train].astype(bool)]
+    horizon = int(steps.max()) + 1
+    clf.timing = np.array([np.mean(steps <= t) for t in range(horizon + 1)])
+    clf.timing[0] = 0.0  # nothing has toppled at the push
+    report = {"train_accuracy": float(np.mean((clf.probability(x_train) >= 0.5) == y_train.astype(bool))),
+              "val_accuracy": float(np.mean((clf.probability(store_features(store, val, num_points, friction, seed + 1)) >= 0.5) == y_val)),
+              "val_majority": float(max(y_val.mean(), 1 - y_val.mean())), "threshold": threshold,
+              "train_sequences": int(len(train)), "val_sequences": int(len(val))}
+    return clf, report

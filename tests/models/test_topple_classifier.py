@@ -1,0 +1,60 @@
+"""The step-0 topple classifier: its features by hand, its fit on a real store, its place in roll-outs."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from physdyn.data.store import load_store
+from physdyn.geometry.sampling import sample_surface_points
+from physdyn.models.topple_classifier import (FEATURE_NAMES, ToppleClassifier, best_threshold, fit_topple_classifier,
+                                              logistic_regression, store_features, topple_features)
+
+
+def _features(points, v, w):
+    return dict(zip(FEATURE_NAMES, topple_features(points[None], [v], [w])[0]))
+
+
+def test_footprint_and_tipping_features_of_a_box_by_hand():
+    # A 0.2 x 0.3 (x, y) x 0.4 m box, centre of mass at the origin: its base is the footprint.
+    points = sample_surface_points(trimesh.creation.box((0.2, 0.3, 0.4)), 2048, 3, seed=0)
+    f = _features(points, [1.0, 0.0, 0.0], [0.0, 2.0, 0.0])  # pushed along +x, tipping forwards (w_y > 0 tips +x)
+    assert f["h_com"] == pytest.approx(0.2, abs=1e-3)
+    assert f["foot_area"] == pytest.approx(0.06, rel=0.05)
+    assert f["edge_travel"] == pytest.approx(0.1, abs=2e-3) and f["edge_back"] == pytest.approx(0.1, abs=2e-3)
+    assert f["edge_min"] == pytest.approx(0.1, abs=2e-3) and f["edge_tip"] == pytest.approx(0.1, abs=2e-3)
+    assert f["tip_energy_travel"] == pytest.approx(9.81 * (np.hypot(0.2, 0.1) - 0.2), rel=0.02)
+    sideways = _features(points, [0.0, 1.0, 0.0], [-2.0, 0.0, 0.0])  # along +y: the far edge is 0.15 away
+    assert sideways["edge_travel"] == pytest.approx(0.15, abs=2e-3) and sideways["edge_tip"] == pytest.approx(0.15, abs=2e-3)
+    assert sideways["tilt_ratio"] < f["tilt_ratio"]  # the same spin tips it less over the longer side
+    on_edge = _features(points @ trimesh.transformations.rotation_matrix(np.pi / 4, [0, 1, 0])[:3, :3].T,
+                        [1.0, 0.0, 0.0], [0.0, 0.0, 0.0])  # balanced on an edge: no area, nowhere to go
+    assert on_edge["foot_area"] < 0.05 * f["foot_area"] and on_edge["edge_min"] < 5e-3  # a 5 mm strip
+
+
+def test_logistic_regression_and_threshold_recover_a_known_rule():
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(2000, 3))
+    y = (x[:, 0] - 2 * x[:, 1] > 0.5).astype(float)
+    w, b = logistic_regression(x, y, ridge=1e-6)
+    assert np.mean(((x @ w + b) > 0) == y) > 0.98
+    assert w[1] / w[0] == pytest.approx(-2, rel=0.15) and abs(w[2]) < 0.1 * abs(w[0])
+    p = np.array([0.1, 0.2, 0.6, 0.7, 0.8])
+    assert best_threshold(p, np.array([0, 0, 0, 1, 1], bool)) in (0.7,)
+
+
+def test_fitted_on_a_store_it_beats_always_no_and_says_when(tiny_store):
+    store = load_store(tiny_store)
+    clf, report = fit_topple_classifier(store)
+    train = np.flatnonzero(store.split == 0)
+    truth = store.toppled[train].astype(bool)
+    decided = clf.probability(store_features(store, train, None, 0.25)) >= 0.5
+    assert np.mean(decided == truth) == pytest.approx(report["train_accuracy"])
+    assert report["train_accuracy"] > max(truth.mean(), 1 - truth.mean()) + 0.05
+    # per step: 0 at the push, growing with the training split's topple times to the sequence's probability
+    steps = clf.per_step(np.array([0.2, 0.9]), 40)
+    assert steps.shape == (2, 41) and (steps[:, 0] == 0).all() and (np.diff(steps, axis=1) >= 0).all()
+    np.testing.assert_allclose(steps[:, -1], [0.2, 0.9])
+    back = ToppleClassifier.from_dict(clf.to_dict())
+    np.testing.assert_allclose(back.per_step(np.array([0.5]), 5), clf.per_step(np.array([0.5]), 5))
+    with pytest.raises(ValueError, match="other features"):
+        ToppleClassifier.from_dict({**clf.to_dict(), "features": ["speed"]})
