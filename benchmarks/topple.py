@@ -1,0 +1,74 @@
+"""Topple accuracy of the bundled model's topple head against step-0 classifiers (docs/model-card.md, "Toppling").
+
+    python benchmarks/topple.py            # quickstart test split; thresholds chosen on its validation split
+
+Rows: always "no"; the topple head's rule (any step's probability >= 0.5) and the same with the threshold
+chosen on validation; one physics ratio (tilt kinetic energy / energy to tip over the edge the top tips
+towards) with its threshold chosen on validation; the logistic regression of ``physdyn fit-topple`` fitted
+on the quickstart store and on the large store; and the classifier shipped in the bundled checkpoint.
+About a minute on 2 CPU cores (the roll-outs of the validation and test splits dominate).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from physdyn.data.store import load_store
+from physdyn.eval import metrics as M
+from physdyn.eval.baselines import load_checkpoint
+from physdyn.eval.evaluate import evaluate, select_sequences
+from physdyn.eval.predict import BUNDLED_CHECKPOINT
+from physdyn.models.topple_classifier import FEATURE_NAMES, best_threshold, fit_topple_classifier, store_features
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--checkpoint", default=str(BUNDLED_CHECKPOINT))
+    parser.add_argument("--data", default="data/quickstart.zarr")
+    parser.add_argument("--large", default="data/quickstart_large.zarr", help="the same shapes with more pushes")
+    args = parser.parse_args()
+    started = time.time()
+    store = load_store(args.data)
+    model = load_checkpoint(args.checkpoint)
+    shipped, model.topple_classifier = model.topple_classifier, None  # the head's own probabilities first
+    val, test = select_sequences(store, "val"), select_sequences(store, "test")
+    y = {"val": store.toppled[val].astype(bool), "test": store.toppled[test].astype(bool)}
+    head = {}
+    for split in ("val", "test"):
+        kept = evaluate(model, store, split, keep_trajectories=True)["trajectories"]
+        prob, valid = kept["predicted"].topple_probability, kept["truth"]["state_valid"]
+        head[split] = np.where(valid, prob, 0.0).max(axis=1)
+    rows = [("always 'no'", np.zeros(len(test), bool))]
+    rows.append(("topple head, any step >= 0.5", head["test"] >= 0.5))
+    t = best_threshold(head["val"], y["val"])
+    rows.append((f"topple head, threshold {t:.2f} chosen on val", head["test"] >= t))
+    x = {"val": store_features(store, val, None, 0.25, 1), "test": store_features(store, test, None, 0.25, 2)}
+    ratio = {k: v[:, FEATURE_NAMES.index("tilt_ratio")] for k, v in x.items()}
+    t = best_threshold(ratio["val"], y["val"])
+    rows.append((f"tilt energy ratio >= {t:.2f} (no learning)", ratio["test"] >= t))
+    clf, _ = fit_topple_classifier(store, None, model.prior_friction)
+    rows.append(("fit-topple on the quickstart store", clf.probability(x["test"]) >= 0.5))
+    try:
+        large = load_store(args.large)
+        clf_large, _ = fit_topple_classifier(large, None, model.prior_friction)
+        rows.append(("fit-topple on the large store", clf_large.probability(x["test"]) >= 0.5))
+    except Exception as exc:  # noqa: BLE001 - the large store is optional
+        print(f"(no large-store row: {exc})")
+    if shipped is not None:
+        model.topple_classifier = shipped
+        result = evaluate(model, store, "test")
+        print(f"shipped classifier through the roll-out: test accuracy {result['topple']['accuracy']:.3f}")
+        rows.append(("shipped classifier (features on this cloud)", shipped.probability(x["test"]) >= 0.5))
+    print(f"\n{args.data} test split: {len(test)} pushes, {int(y['test'].sum())} topple\n")
+    print(f"{'predictor':<48} {'accuracy':>8} {'caught':>7} {'false alarms':>13}")
+    for name, decided in rows:
+        c = M.topple_classification(decided, y["test"])
+        print(f"{name:<48} {c['accuracy']:8.3f} {int(c['tp']):7d} {int(c['fp']):13d}")
+    print(f"\n{time.time() - started:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
