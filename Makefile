@@ -27,14 +27,15 @@ quickstart: install
 	physdyn data info data/quickstart.zarr
 	@if [ -f runs/quickstart/finished.json ]; then echo "runs/quickstart is trained; kept"; \
 	else physdyn fit --config configs/experiment/quickstart.yaml $$([ -f runs/quickstart/last.ckpt ] && echo --resume); fi
-	physdyn test --checkpoint runs/quickstart/best.ckpt --data data/quickstart.zarr --out reports/quickstart --overwrite
+	physdyn fit-topple --checkpoint runs/quickstart/best.ckpt --out runs/quickstart/best_topple.ckpt --overwrite
+	physdyn test --checkpoint runs/quickstart/best_topple.ckpt --data data/quickstart.zarr --out reports/quickstart --overwrite
 	physdyn predict examples/meshes/bracket_mm.obj --scale 0.001 --lin-vel 1.2 0 0 --ang-vel 0 0 3 --seconds 4 \
-		--checkpoint runs/quickstart/best.ckpt --compare-sim --out reports/quickstart/bracket.json \
+		--checkpoint runs/quickstart/best_topple.ckpt --compare-sim --out reports/quickstart/bracket.json \
 		--render reports/quickstart/bracket.html --overwrite
 	@echo
 	@echo "results:"
 	@echo "  dataset        data/quickstart.zarr        (physdyn data info data/quickstart.zarr)"
-	@echo "  model          runs/quickstart/best.ckpt   (logs: runs/quickstart/csv, runs/quickstart/tensorboard)"
+	@echo "  model          runs/quickstart/best.ckpt, best_topple.ckpt (+ topple classifier; logs: runs/quickstart/csv, tensorboard)"
 	@echo "  test report    reports/quickstart/report.md, metrics.json, *.png, viewer.html (open in a browser)"
 	@echo "  prediction     reports/quickstart/bracket.json, reports/quickstart/bracket.html (open in a browser)"
 	@echo
