@@ -399,6 +399,8 @@ class LossWeights:
     position: float = 1.0
     rotation: float = 1.0
     topple: float = 2.0
+    # The window's accumulated position error (the roll-out's drift from the true path), not in the paper.
+    position_drift: float = 0.0
 
 
 @dataclass

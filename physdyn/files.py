@@ -1,12 +1,14 @@
-"""Writing a user's output file so that it is whole or absent, never half-written."""
+"""Writing a user's output file so that it is whole or absent, never half-written; JSON values for it."""
 
 from __future__ import annotations
 
 import contextlib
+import json
+import math
 import os
 import tempfile
 from pathlib import Path
-from typing import Iterator
+from typing import Any, Iterator
 
 
 @contextlib.contextmanager
@@ -77,3 +79,25 @@ def progress_bar(total: int, desc: str, unit: str, enabled: bool = True, initial
     return tqdm(total=total, initial=initial, unit=unit, desc=desc, disable=not enabled, smoothing=0.1,
                 file=stream if terminal else _PlainLines(stream), mininterval=0.1 if terminal else 30.0,
                 dynamic_ncols=terminal, ncols=None if terminal else 100, ascii=not terminal)
+
+
+def jsonable(obj: Any, nan_as_null: bool = False) -> Any:
+    """``obj`` as plain JSON values, the one conversion every JSON file and attribute of physdyn goes
+    through: numpy arrays and scalars become lists and numbers, tuples lists, keys strings, any other
+    object its ``str``; with ``nan_as_null``, NaN and infinite numbers become null (strict JSON)."""
+    def default(o: Any) -> Any:
+        return o.tolist() if hasattr(o, "tolist") else str(o)
+
+    plain = json.loads(json.dumps(obj, default=default))
+    return _finite_or_none(plain) if nan_as_null else plain
+
+
+def _finite_or_none(obj: Any) -> Any:
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, dict):
+        return {k: _finite_or_none(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_finite_or_none(v) for v in obj]
+    return obj
+

@@ -50,6 +50,8 @@ def workspace(tiny_store, tmp_path_factory):
     (ws / "corrupt.zarr").mkdir()
     (ws / "corrupt.zarr" / "zarr.json").write_text("{ not json")
     (ws / "requests.jsonl").write_text(json.dumps({"mesh": "box.obj", "lin_vel": [1, 0, 0], "ang_vel": [0, 0, 1]}) + "\n")
+    (ws / "trials").mkdir()
+    (ws / "trials" / "t1.csv").write_text("when,where\n0,1\n")  # not the tracker layout
     return ws
 
 
@@ -148,6 +150,33 @@ CASES = [
     ("predict-device", [*PREDICT, "--device", "quantum"], "device"),
     ("predict-batch-missing", ["predict", "--batch", "{ws}/nope.jsonl", "--out-dir", "{ws}/preds"], "nope.jsonl"),
     ("predict-batch-binary", ["predict", "--batch", "{ws}/binary.bin", "--out-dir", "{ws}/preds"], "not a text file"),
+    # import-mocap and simulate-mocap: trials, shape, rates, ownership
+    ("mocap-missing-trials", ["import-mocap", "{ws}/nope", "--shape", "box:0.07,0.06,0.17", "--out", "{ws}/m.zarr"], "nope"),
+    ("mocap-no-trials", ["import-mocap", "{ws}/thesis", "--shape", "box:0.07,0.06,0.17", "--out", "{ws}/m.zarr"], "thesis"),
+    ("mocap-bad-header", ["import-mocap", "{ws}/trials", "--shape", "box:0.07,0.06,0.17", "--out", "{ws}/m.zarr"], "t1.csv"),
+    ("mocap-bad-box", ["import-mocap", "{ws}/trials", "--shape", "box:0,0.06,0.17", "--out", "{ws}/m.zarr"], "box"),
+    ("mocap-rate-zero", ["import-mocap", "{ws}/trials", "--shape", "box:0.07,0.06,0.17", "--out", "{ws}/m.zarr", "--rate", "0"],
+     "--rate"),
+    ("mocap-existing-store", ["import-mocap", "{ws}/trials", "--shape", "box:0.07,0.06,0.17", "--out", "{ws}/store.zarr"],
+     "already exists"),
+    ("simmocap-no-trials", ["simulate-mocap", "--out", "{ws}/new_trials", "--trials", "0"], "--trials"),
+    # reproduce: scale, selection, workers
+    ("reproduce-unknown-scale", ["reproduce", "--scale", "huge", "--out", "{ws}/suite"], "unknown scale"),
+    ("reproduce-unknown-experiment", ["reproduce", "--scale", "tiny", "--out", "{ws}/suite", "--only", "nope"], "nope"),
+    ("reproduce-workers-zero", ["reproduce", "--scale", "tiny", "--out", "{ws}/suite", "--workers", "0"], "--workers"),
+    ("reproduce-missing-scale-file", ["reproduce", "--scale", "{ws}/nope.yaml", "--out", "{ws}/suite"], "nope.yaml"),
+    # view and fit-topple
+    ("view-missing-file", ["view", "{ws}/nope.json"], "does not exist"),
+    ("view-not-a-prediction", ["view", "{ws}/taken.json"], "not a prediction file"),
+    ("view-report-without-page", ["view", "{ws}/report"], "holds no viewer.html"),
+    ("view-unknown-sim", ["view", "--checkpoint", "{ws}/run/last.ckpt", "--data", "{ws}/store.zarr", "--sims", "99999",
+                          "--out", "{ws}/v.html"], "99999"),
+    ("topple-dict-checkpoint", ["fit-topple", "--checkpoint", "{ws}/dict.ckpt", "--out", "{ws}/t.ckpt"],
+     "not a physdyn DynamicsModel checkpoint"),
+    ("topple-existing-output", ["fit-topple", "--checkpoint", "{ws}/run/last.ckpt", "--out", "{ws}/notes.ckpt"], "already exists"),
+    ("topple-missing-store", ["fit-topple", "--checkpoint", "{ws}/run/last.ckpt", "--data", "{ws}/nope.zarr", "--out", "{ws}/t.ckpt"],
+     "nope.zarr"),
+    ("config-unknown-preset", ["simulate", "--config", "quikstart", "--out", "{ws}/new.zarr"], "neither a config file nor a data preset"),
     # data info: stores
     ("info-missing-store", ["data", "info", "{ws}/nope.zarr"], "nope.zarr"),
     ("info-corrupt-store", ["data", "info", "{ws}/corrupt.zarr"], "corrupt.zarr"),

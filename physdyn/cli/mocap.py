@@ -8,6 +8,8 @@ ORDER = 15
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from physdyn.config import MassConfig  # the datasets' density is the default here too
+
     p = sub.add_parser(
         "import-mocap",
         help="import motion-capture trials (CSV) into a dataset store",
@@ -32,7 +34,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--friction", type=float, default=float("nan"),
                    help="effective Coulomb coefficient to record in sims/friction (default: NaN, unknown)")
     p.add_argument("--category", default="real", help="category name of the shape (default: %(default)s)")
-    p.add_argument("--density", type=float, default=10.0, help="kg/m^3 for the shape's mass properties (default: %(default)s)")
+    p.add_argument("--density", type=float, default=MassConfig.density,
+                   help="kg/m^3 for the shape's mass properties (default: %(default)s, as the simulated datasets)")
     p.add_argument("--min-frames", type=int, default=5, help="shortest trial kept, in output frames (default: %(default)s)")
     p.add_argument("--fix-sign-flips", action="store_true",
                    help="re-align quaternion sign jumps (q -> -q) instead of skipping those trials")

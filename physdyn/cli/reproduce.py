@@ -24,7 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     listing = "\n".join(f"  {name:<14} {text}" for name, text in EXPERIMENT_HELP.items())
     p = sub.add_parser(
         "reproduce",
-        help="run the paper's experiments (resumable) and write docs/results.md",
+        help="run the paper's experiments (resumable) and write their results page",
         description=(
             "Generate the datasets, train and evaluate every model of the paper's experiments at a scale, skipping "
             "finished runs and resuming interrupted ones, then write the results page (tables and plots)."
@@ -39,8 +39,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--only", metavar="A,B", help="comma-separated experiments to run (default: all)")
     p.add_argument("--workers", type=int, help="simulation worker processes (default: the scale's)")
     p.add_argument("--report-only", action="store_true", help="run nothing; write the results page from --out")
-    p.add_argument("--results", default="docs/results.md", metavar="PATH",
-                   help="results page to write; its plots go to PATH's folder/<stem>/ (default: %(default)s)")
+    p.add_argument("--results", metavar="PATH",
+                   help="results page to write; its plots go to PATH's folder/<stem>/ (default: OUT/results.md; the "
+                        "project's page is regenerated with --results docs/results.md)")
     p.add_argument("--no-results", action="store_true", help="do not write the results page after running")
     p.set_defaults(func=run, parser=p)
 
@@ -51,6 +52,12 @@ def run(args: argparse.Namespace) -> int:
 
     from physdyn.eval.reproduce import run_suite, write_results
 
+    from physdyn.errors import PhysdynError
+
+    if args.workers is not None and args.workers < 1:
+        raise PhysdynError(f"--workers must be at least 1, got {args.workers}")
+    # The page goes inside --out unless named: a run never replaces a results page it did not make.
+    args.results = args.results or f"{args.out.rstrip('/')}/results.md"
     command = "physdyn " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["reproduce"] else \
         f"physdyn reproduce --scale {args.scale} --out {args.out}" + (f" --only {args.only}" if args.only else "")
     if args.report_only:

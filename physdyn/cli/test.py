@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from physdyn.data import SPLITS  # a constant of a package whose __init__ imports nothing heavy
+
 ORDER = 40
 
 
@@ -23,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--data", help="store to evaluate on (default: the store the model was trained on)")
     p.add_argument("--out", required=True, help="folder for metrics.json, report.md, the plots and viewer.html")
     p.add_argument("--no-viewer", action="store_true", help="do not write viewer.html (a few MB)")
-    p.add_argument("--split", choices=["train", "val", "test"], default="test", help="default: %(default)s")
+    p.add_argument("--split", choices=list(SPLITS), default="test", help="default: %(default)s")
     p.add_argument("--warm-start", type=int, default=0, metavar="K",
                    help="feed the true velocities of steps 1..K before rolling out (default: %(default)s)")
     p.add_argument("--categories", nargs="+", metavar="NAME", help="evaluate only these categories")

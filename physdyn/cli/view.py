@@ -111,6 +111,9 @@ def _from_predictions(args: argparse.Namespace) -> Path:
         except Exception as exc:  # noqa: BLE001 - a truncated or foreign file
             raise PhysdynError(f"{path} is not a readable prediction file ({type(exc).__name__}: {exc}); "
                                "write one with `physdyn predict ... --out FILE`") from None
+        missing = [k for k in ("rate_hz", "com_position", "orientation_xyzw", "com_mesh") if k not in result]
+        if missing:
+            raise PhysdynError(f"{path} is not a prediction file (no {missing[0]}); write one with `physdyn predict ... --out FILE`")
         mesh = Path(args.mesh) if args.mesh else _find_mesh(str(result.get("mesh", "")), path)
         if mesh is None:
             raise PhysdynError(f"{path} was predicted for mesh '{result.get('mesh')}', which is not found; pass --mesh PATH")

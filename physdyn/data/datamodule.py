@@ -16,13 +16,13 @@ import torch
 from lightning import LightningDataModule
 from torch.utils.data import DataLoader, Dataset
 
+from physdyn.data import SPLITS
 from physdyn.config import TrainDataConfig
 from physdyn.data.normalization import Normalization, compute_normalization
 from physdyn.data.store import StoreData, load_store
 from physdyn.data.windows import WindowSource, subsample_indices
 from physdyn.errors import ConfigError
 
-SPLITS = {"train": 0, "val": 1, "test": 2}
 
 
 def select_sims(store: StoreData, split: int, categories: list[str] = (), exclude: list[str] = ()) -> np.ndarray:

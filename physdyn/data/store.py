@@ -11,18 +11,19 @@ from __future__ import annotations
 import contextlib
 import os
 
-import json
 import shutil
 import warnings
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Iterable
 
 import numpy as np
 import zarr
 
+from physdyn.data import SPLIT_NAMES  # noqa: F401 - re-exported: readers import it from here
 from physdyn.errors import StoreError
+from physdyn.files import jsonable
 
 FORMAT_VERSION = 1
 PARTS = "_parts"
@@ -50,7 +51,6 @@ SCHEMA: dict[str, tuple[tuple[int, ...], str]] = {
     "frames/angular_velocity": ((3,), "float64"),
     "frames/topple_label": ((), "bool"),
 }
-SPLIT_NAMES = {0: "train", 1: "val", 2: "test"}
 
 
 def _is_url(url: str) -> bool:
@@ -167,7 +167,7 @@ class StoreWriter:
                 raise StoreError(f"{url} exists and is not a physdyn store; refusing to delete it, choose another --out")
             remove_store(url)
         group = _open(url, "w")
-        group.attrs.update({**_jsonable(attrs), "physdyn_format": FORMAT_VERSION, "complete": False})
+        group.attrs.update({**jsonable(attrs), "physdyn_format": FORMAT_VERSION, "complete": False})
         return cls(group, str(url))
 
     @classmethod
@@ -212,7 +212,7 @@ class StoreWriter:
         part = self.group.require_group(name)
         for key, value in arrays.items():
             _write_array(part, key, value)
-        part.attrs.update({**_jsonable(attrs or {}), "done": True})  # last: marks the part complete
+        part.attrs.update({**jsonable(attrs or {}), "done": True})  # last: marks the part complete
 
     def read_block(self, block: int) -> tuple[dict[str, np.ndarray], dict]:
         part = self.group[f"{PARTS}/{block:06d}"]
@@ -226,10 +226,10 @@ class StoreWriter:
         for key, value in arrays.items():
             _write_array(self.group, key, value)
         for name, extra in (group_attrs or {}).items():
-            self.group[name].attrs.update(_jsonable(extra))
+            self.group[name].attrs.update(jsonable(extra))
         # A missing chunk reads back as fill values without any error: checksums make corruption visible.
         checksums = {key: checksum(value) for key, value in arrays.items()}
-        self.group.attrs.update({**_jsonable(attrs), "checksums": checksums, "arrays_written": True})
+        self.group.attrs.update({**jsonable(attrs), "checksums": checksums, "arrays_written": True})
         self._delete(PARTS)
         self.group.attrs["complete"] = True
         with warnings.catch_warnings():
@@ -263,10 +263,6 @@ def _array_paths(group: zarr.Group, prefix: str = "") -> Iterable[str]:
     for name, sub in group.groups():
         if name != PARTS:
             yield from _array_paths(sub, f"{prefix}{name}/")
-
-
-def _jsonable(obj: Any) -> Any:
-    return json.loads(json.dumps(obj, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
 
 
 @dataclass

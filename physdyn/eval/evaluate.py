@@ -13,6 +13,7 @@ from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
+from physdyn.data import SPLITS
 from physdyn.data.store import StoreData, load_store
 from physdyn.data.windows import frame_targets, subsample_indices
 from physdyn.errors import PhysdynError
@@ -20,7 +21,6 @@ from physdyn.eval import metrics as M
 from physdyn.eval.baselines import Baseline, predictor_name, resolve_predictor
 from physdyn.eval.rollout import DELTA_KEYS, RolloutResult, rollout, teacher_forced
 
-SPLITS = {"train": 0, "val": 1, "test": 2}
 GROUPS = ("non_toppling", "toppling", "all")
 
 

@@ -24,7 +24,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from physdyn.errors import PhysdynError
-from physdyn.files import atomic_output, check_writable
+from physdyn.files import atomic_output, check_writable, jsonable
 
 BUNDLED_CHECKPOINT = Path(__file__).resolve().parents[1] / "assets" / "bundled.ckpt"
 OUTPUT_EXTENSIONS = (".json", ".npz", ".csv")
@@ -448,20 +448,6 @@ def _nest(flat: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def to_jsonable(result: dict[str, Any]) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for key, value in result.items():
-        if isinstance(value, dict):
-            out[key] = to_jsonable(value)
-        elif isinstance(value, np.ndarray):
-            out[key] = value.tolist()
-        elif isinstance(value, np.generic):
-            out[key] = value.item()
-        else:
-            out[key] = value
-    return out
-
-
 def write_prediction(result: dict[str, Any], path: str | Path, overwrite: bool = False) -> Path:
     """Write ``result`` to ``path``: JSON, or .npz / .csv by the extension (docs/predict.md).
 
@@ -473,7 +459,7 @@ def write_prediction(result: dict[str, Any], path: str | Path, overwrite: bool =
     ext = path.suffix.lower()
     with atomic_output(path) as tmp, open(tmp, "wb") as fh:
         if ext == ".json":
-            fh.write(json.dumps(to_jsonable(result), indent=1).encode())
+            fh.write(json.dumps(jsonable(result), indent=1).encode())
         elif ext == ".npz":
             np.savez(fh, **_npz_arrays(result))
         else:
@@ -511,7 +497,7 @@ def _csv_text(result: dict[str, Any]) -> str:
     for key, value in flat.items():
         is_step = key.split("simulated_", 1)[-1] in STEP_KEYS
         if not is_step:
-            lines.append(f"# {key}: {json.dumps(to_jsonable({key: value})[key])}")
+            lines.append(f"# {key}: {json.dumps(jsonable({key: value})[key])}")
             continue
         arr = (np.full(T, np.nan) if value is None else np.asarray(value, dtype=np.float64)).reshape(T, -1)
         header += _csv_columns(key)

@@ -17,22 +17,11 @@ from typing import Any
 import numpy as np
 
 from physdyn.errors import PhysdynError
+from physdyn.files import jsonable
 
 from physdyn.eval.metrics import ERROR_KEYS
 
 UNITS = {"linear_velocity": "m/s", "angular_velocity": "rad/s", "position": "m", "angle_deg": "deg", "axis": "1 - cos"}
-
-
-def _clean(obj: Any) -> Any:
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    if isinstance(obj, dict):
-        return {k: _clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, np.generic):
-        return _clean(obj.item())
-    return obj
 
 
 def fmt_number(x: Any, digits: int = 4) -> str:
@@ -187,7 +176,7 @@ def write_report(comparison: dict, out_dir: str | Path, overwrite: bool = False)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {key: out / name for key, name in REPORT_FILES.items()}
-    paths["metrics"].write_text(json.dumps(_clean(comparison), indent=1))
+    paths["metrics"].write_text(json.dumps(jsonable(comparison, nan_as_null=True), indent=1))
     paths["report"].write_text(markdown(comparison))
     plot_error_vs_time(comparison, paths["error_vs_time"])
     plot_errors_per_category(comparison, paths["per_category"])

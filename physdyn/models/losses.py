@@ -17,6 +17,9 @@ relative form finite when ``rest_threshold`` is 0.
 ``kind="absolute"`` (the real-world model) keeps only the numerators ||x_hat - x|| on every step.
 ``kind="huber"`` applies the Huber function to that error norm (quadratic below ``huber_delta``): unlike the
 relative loss it does not let the small changes of late, slow steps weigh as much as the large early ones.
+
+``weights.position_drift`` (default 0: the paper's loss) adds the Huber function of the accumulated
+position error at each step of the window, ||sum_{s<=t} (dp_hat_s - dp_s)||: the drift a roll-out builds up.
 """
 
 from __future__ import annotations
@@ -84,6 +87,14 @@ def dynamics_loss(
             per_step = absolute_error(pred, true, p)
         terms[name] = per_step.mean(dim=-1).mean()  # over steps, then over the batch
         total = total + w[name] * terms[name]
+    if w.get("position_drift", 0.0) > 0:
+        # Where the window's predicted positions have got to against the true ones: the summed per-step
+        # position errors, which a roll-out accumulates and per-step terms do not see (Huber-shaped like
+        # the huber kind, so one bad window does not dominate).
+        drift = absolute_error(torch.cumsum(changes[..., 6:9], dim=-2), torch.cumsum(targets[..., 6:9], dim=-2))
+        per_step = torch.where(drift < huber_delta, 0.5 * drift * drift / huber_delta, drift - 0.5 * huber_delta)
+        terms["position_drift"] = per_step.mean(dim=-1).mean()
+        total = total + w["position_drift"] * terms["position_drift"]
     if topple_logit is not None and topple_label is not None:
         bce = F.binary_cross_entropy_with_logits(topple_logit, topple_label.to(topple_logit.dtype), reduction="none")
         terms["topple"] = bce.mean(dim=-1).mean()

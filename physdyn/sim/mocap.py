@@ -20,14 +20,14 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from physdyn.config import PhysicsConfig
+from physdyn.config import MassConfig, PhysicsConfig
 from physdyn.errors import PhysdynError, ShapeError
 from physdyn.geometry.rotations import canonical_quat, continuous_quat, matrix_to_quat, quat_conjugate, quat_multiply, quat_to_matrix, rotvec_to_quat
 from physdyn.sim.body import RigidBodySpec
 
 CSV_HEADER = "time,x,y,z,qx,qy,qz,qw"
 PAPER_BOX = (0.073, 0.060, 0.170)  # m, the supplement's cardboard box
-DEFAULT_DENSITY = 10.0  # kg/m^3, as the simulated datasets (MassConfig.density)
+DEFAULT_DENSITY = MassConfig.density  # kg/m^3, as the simulated datasets
 
 
 # --------------------------------------------------------------------------------------------------

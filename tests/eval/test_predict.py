@@ -209,7 +209,7 @@ def bad_files(tmp_path_factory):
 
 @pytest.mark.parametrize("case", ["missing mesh", "nan velocity", "unreadable mesh", "dict checkpoint",
                                   "text checkpoint", "existing output", "bad extension"])
-def test_bad_input_exits_with_one_line_and_writes_nothing(case, checkpoint, meshes, bad_files, tmp_path):
+def test_bad_input_exits_with_one_line_and_writes_nothing(case, checkpoint, meshes, bad_files, tmp_path, capsys):
     mesh, lin, ckpt, out = str(meshes / "box.obj"), ["1", "0", "0"], checkpoint, tmp_path / "out.json"
     expected = {
         "missing mesh": "mesh file not found", "nan velocity": "--lin-vel must be finite",
@@ -231,11 +231,14 @@ def test_bad_input_exits_with_one_line_and_writes_nothing(case, checkpoint, mesh
         out = bad_files / "taken.json"
     elif case == "bad extension":
         out = tmp_path / "out.txt"
-    proc = run_cli("predict", mesh, "--lin-vel", *lin, "--ang-vel", "0", "0", "1", "--checkpoint", ckpt, "--out", str(out),
-                   "--render", str(tmp_path / "anim.gif"))
-    assert proc.returncode == 2
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and expected in lines[0], proc.stderr
+    from physdyn.cli import main  # in-process: the CLI's own error boundary, without a fresh interpreter per case
+
+    code = main(["predict", mesh, "--lin-vel", *lin, "--ang-vel", "0", "0", "1", "--checkpoint", ckpt, "--out", str(out),
+                 "--render", str(tmp_path / "anim.gif")])
+    err = capsys.readouterr().err
+    assert code == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and expected in lines[0], err
     assert not (tmp_path / "anim.gif").exists()
     if case == "existing output":
         assert out.read_text() == "{}"

@@ -95,3 +95,17 @@ def test_learning_rate_decays_to_lr_min_and_never_below():
     assert learning_rate_factor("step", int(every) - 1, math.inf, 1e-3, 1e-5, 0.75, every) == 1.0
     assert learning_rate_factor("step", int(2 * every) + 1, math.inf, 1e-3, 1e-5, 0.75, every) == pytest.approx(0.75**2)
     assert learning_rate_factor("step", 10**9, math.inf, 1e-3, 1e-5, 0.75, every) == pytest.approx(1e-2)
+
+
+def test_position_drift_sums_the_per_step_position_errors():
+    targets = torch.zeros(1, 4, 12)
+    changes = torch.zeros(1, 4, 12)
+    changes[..., 6] = 0.01  # 1 cm too far in x every step: 1, 2, 3, 4 cm of drift
+    changes[0, 2, 6] = -0.01  # ... except a step back: 1, 2, 1, 2
+    out = dynamics_loss(changes, targets, kind="huber", weights={"position_drift": 3.0}, huber_delta=0.015)
+    drift = torch.tensor([0.01, 0.02, 0.01, 0.02])
+    huber = torch.where(drift < 0.015, 0.5 * drift**2 / 0.015, drift - 0.0075)
+    assert out.terms["position_drift"].item() == pytest.approx(huber.mean().item(), rel=1e-6)
+    plain = dynamics_loss(changes, targets, kind="huber", huber_delta=0.015)
+    assert "position_drift" not in plain.terms  # the paper's loss by default
+    assert out.total.item() == pytest.approx(plain.total.item() + 3.0 * huber.mean().item(), rel=1e-6)
