@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
 
     from physdyn.data.store import load_store
     from physdyn.errors import PhysdynError
-    from physdyn.eval.baselines import load_checkpoint
+    from physdyn.eval.baselines import checkpoint_and_store
     from physdyn.files import atomic_output, check_writable
     from physdyn.models.topple_classifier import fit_topple_classifier
 
@@ -48,10 +48,7 @@ def run(args: argparse.Namespace) -> int:
     check_writable(out, "--out")
     if args.num_points is not None and args.num_points < 16:
         raise PhysdynError(f"--num-points must be at least 16, got {args.num_points}")
-    model = load_checkpoint(args.checkpoint)  # checks that it is a physdyn checkpoint
-    data = args.data or model.data_info.get("store")
-    if not data:
-        raise PhysdynError(f"{args.checkpoint} does not record its store; pass --data STORE")
+    model, data = checkpoint_and_store(args.checkpoint, args.data)
     store = load_store(data)
     if abs(float(model.data_info.get("rate_hz", store.rate_hz)) - store.rate_hz) > 1e-6:
         raise PhysdynError(f"the model was trained at {model.data_info['rate_hz']:g} Hz and {data} is recorded at "

@@ -39,17 +39,14 @@ def run(args: argparse.Namespace) -> int:
     import sys
 
     from physdyn.errors import PhysdynError
-    from physdyn.eval.baselines import load_checkpoint
+    from physdyn.eval.baselines import checkpoint_and_store, load_checkpoint
     from physdyn.eval.evaluate import compare
     from physdyn.eval.report import VIEWER_FILE, check_report_target, write_report
 
     if args.warm_start < 0:
         raise PhysdynError(f"--warm-start must be >= 0, got {args.warm_start}")
     check_report_target(args.out, args.overwrite)
-    model = load_checkpoint(args.checkpoint)
-    data = args.data or model.data_info.get("store")
-    if not data:
-        raise PhysdynError(f"{args.checkpoint} does not record its store; pass --data STORE")
+    model, data = checkpoint_and_store(args.checkpoint, args.data)
     baselines = ["stay_put", "coulomb_slide", *(load_checkpoint(c) for c in args.baseline_checkpoint)]
     result = compare(model, data, baselines, split=args.split, warm_start=args.warm_start, categories=args.categories,
                      keep_trajectories=not args.no_viewer, progress=lambda line: print(f"test: {line}", file=sys.stderr, flush=True))

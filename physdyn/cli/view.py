@@ -129,7 +129,7 @@ def _from_store(args: argparse.Namespace) -> Path:
 
     from physdyn.data.store import load_store
     from physdyn.errors import PhysdynError
-    from physdyn.eval.baselines import load_checkpoint
+    from physdyn.eval.baselines import checkpoint_and_store
     from physdyn.eval.store_scenes import rollout_scenes
     from physdyn.eval.viewer import check_viewer_path, write_viewer
 
@@ -138,10 +138,7 @@ def _from_store(args: argparse.Namespace) -> Path:
     if not args.out:
         raise PhysdynError("pass --out PAGE.html for the page")
     out = check_viewer_path(args.out, args.overwrite)
-    model = load_checkpoint(args.checkpoint)
-    data = args.data or model.data_info.get("store")
-    if not data:
-        raise PhysdynError(f"{args.checkpoint} does not record its store; pass --data STORE")
+    model, data = checkpoint_and_store(args.checkpoint, args.data)
     store = load_store(data)
     sims = np.asarray(args.sims, dtype=np.int64)
     bad = sims[(sims < 0) | (sims >= store.num_sims)]

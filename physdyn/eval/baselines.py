@@ -150,6 +150,15 @@ def load_checkpoint(path: str | Path):
     return model
 
 
+def checkpoint_and_store(checkpoint: str | Path, data: str | None = None):
+    """(the model of ``checkpoint``, the store to use: ``data`` or the one it was trained on)."""
+    model = load_checkpoint(checkpoint)
+    store = data or model.data_info.get("store")
+    if not store:
+        raise CheckpointError(f"{checkpoint} does not record its store; pass --data STORE")
+    return model, store
+
+
 def resolve_predictor(spec: Any):
     """A baseline name, a ``Baseline``, a ``DynamicsModel`` or a checkpoint path -> the predictor."""
     if isinstance(spec, Baseline) or hasattr(spec, "encode_points"):
