@@ -31,6 +31,8 @@ priors are pure functions of the velocities fed at step t, so teacher forcing an
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from physdyn.models.rotations import rotate
@@ -112,6 +114,12 @@ def contact_changes(linear_velocity: torch.Tensor, angular_velocity: torch.Tenso
     of a point r of a body spinning at w_z is u + i w_z r, and the vertical torque r x f is Im(conj(r) f);
     half the tensor operations of x/y pairs, which matters in a loop of small tensors."""
     B, T = linear_velocity.shape[:2]
+    if B == 1 and T == 1 and linear_velocity.device.type == "cpu" and not torch.is_grad_enabled():
+        # One object, one step, no gradient: a one-at-a-time roll-out. The same arithmetic on Python
+        # numbers costs ~0.1 ms where a loop of tiny tensor operations costs ~2 ms (tests compare them).
+        out = _contact_changes_one(linear_velocity[0, 0].tolist(), angular_velocity[0, 0].tolist(),
+                                   orientation[0, 0].tolist(), geometry[0].tolist(), dt, friction, gravity)
+        return torch.tensor(out, dtype=linear_velocity.dtype).reshape(1, 1, 12)
     K = (geometry.shape[1] - 2) // 4
     support = geometry[:, : 3 * K].reshape(B, 1, K, 3)
     base_weights = geometry[:, 3 * K : 4 * K].reshape(B, 1, K)
@@ -166,3 +174,56 @@ def contact_changes(linear_velocity: torch.Tensor, angular_velocity: torch.Tenso
     du = u - u0
     return torch.cat([du.real, du.imag, -v[..., 2:3], -w[..., :2], om - om0,
                       dp.real, dp.imag, zeros1, zeros1, zeros1, yaw], dim=-1)
+
+
+def _contact_changes_one(v: list, w: list, q: list, geometry: list, dt: float, friction: float,
+                         gravity: float) -> list:
+    """``contact_changes`` for one object and one step on Python numbers (complex for horizontal vectors),
+    operation for operation: the 12 changes as a list."""
+    K = (len(geometry) - 2) // 4
+    qx, qy, qz, qw = q
+    r = []
+    for k in range(K):  # rotate the support point by q: x + w t + u x t, t = 2 u x x
+        x, y, z = geometry[3 * k : 3 * k + 3]
+        tx, ty, tz = 2.0 * (qy * z - qz * y), 2.0 * (qz * x - qx * z), 2.0 * (qx * y - qy * x)
+        r.append(complex(x + qw * tx + (qy * tz - qz * ty), y + qw * ty + (qz * tx - qx * tz)))
+    base = geometry[3 * K : 4 * K]
+    spin_inertia, height = geometry[4 * K], geometry[4 * K + 1]
+    centre = sum(b * rk for b, rk in zip(base, r))
+    decel = max(abs(float(friction) * float(gravity)), 1e-9)
+    h = dt / CONTACT_SUBSTEPS
+    slip_scale = decel * h
+    lean = PRESSURE_LEAN * float(friction) * height
+    u0, om0 = complex(v[0], v[1]), w[2]
+    u, om, dp, yaw = u0, om0, 0j, 0.0
+    offset = [rk - centre for rk in r]
+    cxx = sum(b * o.real * o.real for b, o in zip(base, offset)) + 1e-6
+    cyy = sum(b * o.imag * o.imag for b, o in zip(base, offset)) + 1e-6
+    cxy = sum(b * o.real * o.imag for b, o in zip(base, offset))
+    det = cxx * cyy - cxy * cxy
+    speed = abs(u)
+    moving = min(speed / slip_scale, 1.0)
+    shift = moving * lean * (u / max(speed, 1e-9)) - centre
+    ax = (cyy * shift.real - cxy * shift.imag) / det
+    ay = (cxx * shift.imag - cxy * shift.real) / det
+    weights = [b * max(1.0 + o.real * ax + o.imag * ay, 0.0) for b, o in zip(base, offset)]
+    total = max(sum(weights), 1e-12)
+    weights = [x / total for x in weights]
+    stiffness = decel * h / spin_inertia
+    for _ in range(CONTACT_SUBSTEPS):
+        pulls = []
+        for wk, rk in zip(weights, r):
+            rel = u + 1j * om * rk
+            slip = abs(rel)
+            pulls.append(wk * rel * (min(slip / slip_scale, 1.0) / max(slip, 1e-9)))
+        u = u - decel * h * sum(pulls)
+        spun = om - stiffness * sum((rk.conjugate() * pk).imag for rk, pk in zip(r, pulls))
+        om = 0.0 if spun * om < 0 else spun
+        dp = dp + u * h
+        turn = om * h
+        yaw += turn
+        spin = complex(math.cos(turn), math.sin(turn))
+        r = [rk * spin for rk in r]
+    du = u - u0
+    return [du.real, du.imag, -v[2], -w[0], -w[1], om - om0, dp.real, dp.imag, 0.0, 0.0, 0.0, yaw]
+

@@ -254,3 +254,23 @@ def test_tiny_training_run_lowers_the_rollout_error(tiny_store, tmp_path):
     assert a["position"] < 0.9 * b["position"], (a["position"], b["position"])
     assert a["final_position_m_median"] < 0.9 * b["final_position_m_median"]
     assert a["linear_velocity"] < b["linear_velocity"]
+
+
+def test_the_one_object_contact_prior_is_the_tensor_one_to_rounding():
+    # A one-at-a-time roll-out takes the contact prior on Python numbers; batches and training the tensor
+    # loop. Both must give the same changes: resting, slow, sliding, spinning and tumbling states.
+    from physdyn.models.priors import contact_changes, contact_geometry
+
+    torch.manual_seed(0)
+    for trial in range(60):
+        points = torch.randn(1, 128, 3, dtype=torch.float64) * torch.tensor([0.08, 0.05, 0.1], dtype=torch.float64)
+        geometry = contact_geometry(points)
+        v = torch.randn(1, 1, 3, dtype=torch.float64) * (2.0 if trial % 3 else 0.005)
+        w = torch.randn(1, 1, 3, dtype=torch.float64) * (5.0 if trial % 2 else 0.02)
+        q = torch.randn(1, 1, 4, dtype=torch.float64)
+        q = q / q.norm()
+        with torch.no_grad():
+            one = contact_changes(v, w, q, geometry, 1 / 15, 0.25)
+        batch = contact_changes(v.expand(2, 1, 3), w.expand(2, 1, 3), q.expand(2, 1, 4), geometry.expand(2, -1), 1 / 15, 0.25)
+        torch.testing.assert_close(one, batch[:1], rtol=0, atol=1e-10)
+        assert one.dtype == torch.float64 and one.shape == (1, 1, 12)
