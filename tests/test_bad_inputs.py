@@ -160,6 +160,10 @@ CASES = [
     ("mocap-existing-store", ["import-mocap", "{ws}/trials", "--shape", "box:0.07,0.06,0.17", "--out", "{ws}/store.zarr"],
      "already exists"),
     ("simmocap-no-trials", ["simulate-mocap", "--out", "{ws}/new_trials", "--trials", "0"], "--trials"),
+    ("simmocap-nan-floor", ["simulate-mocap", "--out", "{ws}/new_trials", "--trials", "1", "--floor-offset", "nan"],
+     "--floor-offset"),
+    ("simmocap-absurd-floor", ["simulate-mocap", "--out", "{ws}/new_trials", "--trials", "1", "--floor-offset", "1e9"],
+     "--floor-offset"),
     # reproduce: scale, selection, workers
     ("reproduce-unknown-scale", ["reproduce", "--scale", "huge", "--out", "{ws}/suite"], "unknown scale"),
     ("reproduce-unknown-experiment", ["reproduce", "--scale", "tiny", "--out", "{ws}/suite", "--only", "nope"], "nope"),

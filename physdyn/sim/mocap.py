@@ -14,6 +14,7 @@ import (physdyn.data.mocap), since both need its mass properties, hull and point
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,6 +29,7 @@ from physdyn.sim.body import RigidBodySpec
 CSV_HEADER = "time,x,y,z,qx,qy,qz,qw"
 PAPER_BOX = (0.073, 0.060, 0.170)  # m, the supplement's cardboard box
 DEFAULT_DENSITY = MassConfig.density  # kg/m^3, as the simulated datasets
+MAX_FLOOR_OFFSET = 10.0  # m: a tracker origin off the floor by more is a unit mistake
 
 
 # --------------------------------------------------------------------------------------------------
@@ -229,6 +231,9 @@ def simulate_mocap_trials(out: str | Path, trials: int = 12, seed: int = 0, box:
 
     if trials < 1:
         raise PhysdynError(f"--trials must be at least 1, got {trials}")
+    offset = float((settings or SyntheticSettings()).floor_offset_m)
+    if not math.isfinite(offset) or abs(offset) > MAX_FLOOR_OFFSET:
+        raise PhysdynError(f"--floor-offset must be a finite number of metres within +-{MAX_FLOOR_OFFSET:g}, got {offset:g}")
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise PhysdynError(f"--out {out} is a file; choose a folder for the trials")
