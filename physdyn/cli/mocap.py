@@ -62,9 +62,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_import(args: argparse.Namespace) -> int:
-    from physdyn.data.mocap import ImportSettings, import_mocap
+    from physdyn.data.mocap_import import ImportSettings, import_mocap
     from physdyn.errors import PhysdynError
-    from physdyn.sim.mocap import tracked_shape
+    from physdyn.sim.synthetic_trials import tracked_shape
 
     if args.rate <= 0 or args.min_frames < 1:
         raise PhysdynError("--rate must be positive and --min-frames at least 1")
@@ -92,7 +92,7 @@ def run_import(args: argparse.Namespace) -> int:
 
 
 def run_simulate(args: argparse.Namespace) -> int:
-    from physdyn.sim.mocap import SyntheticSettings, simulate_mocap_trials
+    from physdyn.sim.synthetic_trials import SyntheticSettings, simulate_mocap_trials
 
     settings = SyntheticSettings(floor_offset_m=args.floor_offset)
     paths = simulate_mocap_trials(args.out, trials=args.trials, seed=args.seed, box=args.shape,

@@ -1,5 +1,5 @@
-"""Motion-capture import (physdyn.data.mocap) checked against synthetic trials with known truth
-(physdyn.sim.mocap), malformed trials, and the real-world preset trained and tested on the result."""
+"""Motion-capture import (physdyn.data.mocap_import) checked against synthetic trials with known truth
+(physdyn.sim.synthetic_trials), malformed trials, and the real-world preset trained and tested on the result."""
 
 from __future__ import annotations
 
@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
-from physdyn.data.mocap import ImportSettings, average_quaternions, import_trial, split_trials
+from physdyn.data.mocap_import import ImportSettings, average_quaternions, import_trial, split_trials
 from physdyn.data.store import load_store
 from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_rotvec, rotvec_to_quat
-from physdyn.sim.mocap import CSV_HEADER, tracked_shape, write_trial_csv
+from physdyn.sim.synthetic_trials import CSV_HEADER, tracked_shape, write_trial_csv
 from tests.conftest import REPO, run_cli
 
 BOX = "box:0.073,0.060,0.170"

@@ -32,7 +32,7 @@ import numpy as np
 
 from physdyn.errors import PhysdynError, StoreError
 from physdyn.geometry.rotations import canonical_quat, continuous_quat, quat_to_matrix, world_delta_rotvec
-from physdyn.sim.mocap import CSV_HEADER, TrackedShape
+from physdyn.sim.synthetic_trials import CSV_HEADER, TrackedShape
 from physdyn.sim.trajectory import topple_labels
 
 COLUMNS = tuple(CSV_HEADER.split(","))

@@ -8,7 +8,7 @@ pose of the *mesh frame* with tracking noise and a floor offset — plus a sidec
 holding the simulator's noiseless poses, true velocities and the release time.
 
 This module also holds the *tracked shape* (``TrackedShape``): the shape a trial is of, shared with the
-import (physdyn.data.mocap), since both need its mass properties, hull and point cloud.
+import (physdyn.data.mocap_import), since both need its mass properties, hull and point cloud.
 """
 
 from __future__ import annotations
