@@ -183,15 +183,16 @@ def test_a_model_without_topple_head_writes_null_probabilities(tmp_path):
         assert back["topple_probability"] is None and back["mesh"] == "m.obj", ext
 
 
-def test_batch_writes_good_lines_and_reports_bad_ones_by_number(checkpoint, meshes, tmp_path):
+def test_batch_writes_good_lines_and_reports_bad_ones_by_number(checkpoint, meshes, tmp_path, capsys):
     requests = tmp_path / "requests.jsonl"
     good = {"mesh": str(meshes / "can.stl"), "lin_vel": [0.8, 0, 0], "ang_vel": [0, 0, 1], "seconds": 1, "out": "can.npz"}
     bad = {"mesh": str(meshes / "missing.obj"), "lin_vel": [1, 0, 0], "ang_vel": [0, 0, 0], "seconds": 1, "out": "bad.json"}
     requests.write_text(json.dumps(good) + "\n" + json.dumps(bad) + "\n")
     out = tmp_path / "predictions"
-    proc = run_cli("predict", "--batch", str(requests), "--out-dir", str(out), "--checkpoint", checkpoint)
-    assert proc.returncode != 0
-    assert "line 2" in proc.stderr and "missing.obj" in proc.stderr and "line 1" not in proc.stderr
+    code, _, stderr = _cli("predict", "--batch", str(requests), "--out-dir", str(out), "--checkpoint", checkpoint,
+                           capsys=capsys)
+    assert code != 0
+    assert "line 2" in stderr and "missing.obj" in stderr and "line 1" not in stderr
     assert sorted(p.name for p in out.iterdir()) == ["can.npz"]
     res = read_prediction(out / "can.npz")
     assert res["com_position"].shape == (16, 3) and res["mesh"] == good["mesh"]
@@ -286,17 +287,27 @@ def test_predict_many_equals_each_request_predicted_alone_in_any_chunking(checkp
     assert predictor.predict_many([], np.zeros((0, 3)), np.zeros((0, 3))) == []
 
 
-def test_batch_lines_with_a_non_boolean_or_an_escaping_path_are_refused(checkpoint, meshes, tmp_path):
+def _cli(*args: str, capsys) -> tuple[int, str, str]:
+    """`physdyn ARGS` in this process (the CLI's own error boundary): exit code, stdout, stderr."""
+    from physdyn.cli import main
+
+    code = main(list(args))
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def test_batch_lines_with_a_non_boolean_or_an_escaping_path_are_refused(checkpoint, meshes, tmp_path, capsys):
     base = {"mesh": str(meshes / "can.stl"), "lin_vel": [0.8, 0, 0], "ang_vel": [0, 0, 1], "seconds": 1}
     lines = [dict(base, out="ok.json"), dict(base, out="no.json", compare_sim="no"), dict(base, out="../outside.json"),
              dict(base, out="ok2.json")]
     requests = tmp_path / "requests.jsonl"
     requests.write_text("\n".join(json.dumps(line) for line in lines) + "\n")
     out = tmp_path / "predictions"
-    proc = run_cli("predict", "--batch", str(requests), "--out-dir", str(out), "--checkpoint", checkpoint)
-    assert proc.returncode == 2
-    assert "line 2: error: \"compare_sim\" must be true or false" in proc.stderr
-    assert "line 3: error: \"out\": '../outside.json' leads outside --out-dir" in proc.stderr
+    code, stdout, stderr = _cli("predict", "--batch", str(requests), "--out-dir", str(out), "--checkpoint", checkpoint,
+                                capsys=capsys)
+    assert code == 2
+    assert "line 2: error: \"compare_sim\" must be true or false" in stderr
+    assert "line 3: error: \"out\": '../outside.json' leads outside --out-dir" in stderr
     assert sorted(p.name for p in out.iterdir()) == ["ok.json", "ok2.json"]
     assert not (tmp_path / "outside.json").exists()
-    assert "2 of 4 requests written" in proc.stdout
+    assert "2 of 4 requests written" in stdout
