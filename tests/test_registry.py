@@ -267,14 +267,20 @@ def test_entry_point_without_a_distribution_is_named_by_its_value(fresh, monkeyp
     assert entry.source == f"plugin late_{uid}"
 
 
-def test_global_registries_use_the_documented_groups():
-    groups = {kind: registry.group for kind, registry in ALL_REGISTRIES.items()}
-    assert groups == {
-        "shape_families": "physdyn.shape_families",
-        "encoders": "physdyn.encoders",
-        "predictors": "physdyn.predictors",
-        "heads": "physdyn.heads",
-    }
+def test_the_documented_entry_point_groups_are_the_registries_and_the_example_plugins():
+    # What a plugin author reads (README) and copies (the example plugin's pyproject) must name the groups
+    # the registries actually scan.
+    import re
+    import tomllib
+
+    from tests.conftest import REPO
+
+    groups = {registry.group for registry in ALL_REGISTRIES.values()}
+    readme = (REPO / "README.md").read_text()
+    documented = set(re.findall(r"`(physdyn\.[a-z_]+)`", readme.split("entry-point groups", 1)[1][:300]))
+    assert documented == groups
+    plugin = tomllib.loads((REPO / "plugins" / "physdyn-dgcnn" / "pyproject.toml").read_text())
+    assert set(plugin["project"]["entry-points"]) <= groups and "physdyn.encoders" in plugin["project"]["entry-points"]
 
 
 # --------------------------------------------------------------------------------------------------

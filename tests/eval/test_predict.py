@@ -11,7 +11,7 @@ from PIL import Image
 
 import physdyn
 from physdyn.errors import PhysdynError
-from physdyn.eval.predict import (BUNDLED_CHECKPOINT, PredictionError, PredictionWarning, Predictor, load_predictor,
+from physdyn.eval.predict import (PredictionError, PredictionWarning, Predictor, load_predictor,
                                   read_prediction, write_prediction)
 from physdyn.geometry.rotations import quat_to_matrix
 from physdyn.models.training import fit, load_experiment_config
@@ -166,9 +166,15 @@ def test_bad_values_are_refused_where_they_enter(checkpoint, meshes):
         args = {"lin_vel": LIN, "ang_vel": ANG, **kwargs}
         with pytest.raises(PhysdynError, match=match):
             predictor.predict(box, **args)
-    if not BUNDLED_CHECKPOINT.is_file():
-        with pytest.raises(PhysdynError, match="no bundled model.*--checkpoint"):
-            load_predictor()
+
+
+
+def test_an_installation_without_the_bundled_model_says_so(tmp_path, monkeypatch):
+    import physdyn.eval.predict as P
+
+    monkeypatch.setattr(P, "BUNDLED_CHECKPOINT", tmp_path / "bundled.ckpt")  # as if the asset were left out
+    with pytest.raises(PhysdynError, match="no bundled model.*--checkpoint"):
+        load_predictor()
 
 
 def test_a_model_without_topple_head_writes_null_probabilities(tmp_path):

@@ -255,5 +255,14 @@ def test_meshes_family_reports_a_bad_file_by_name(tmp_path):
         family.make(1, np.random.default_rng(0))
 
 
-def test_meshes_config_is_the_shared_mesh_folder_config():
-    assert SHAPE_FAMILIES.get("meshes").Config is MeshFolderConfig
+def test_the_data_configs_mesh_folder_settings_reach_the_family(tmp_path):
+    # meshes.dir and meshes.scale of a data config (the MeshFolderConfig schema) are what the family reads.
+    from physdyn.config import DataConfig, load_config, preset_path
+    from physdyn.sim.generate import build_family
+
+    trimesh.creation.box(extents=(0.2, 0.1, 0.3)).export(tmp_path / "a.obj")
+    cfg = load_config(DataConfig, preset_path("meshes", "data"), [f"meshes.dir={tmp_path}", "meshes.scale=0.5"])
+    assert SHAPE_FAMILIES.get("meshes").Config is MeshFolderConfig and isinstance(cfg.meshes, MeshFolderConfig)
+    made = build_family(cfg, "meshes").make(0, np.random.default_rng(0))
+    np.testing.assert_allclose(sorted(made.mesh.extents), [0.05, 0.1, 0.15], atol=1e-9)
+    assert "a.obj" in made.source
