@@ -304,3 +304,43 @@ def test_a_command_without_resume_is_never_told_to_pass_it(tmp_path):
     with pytest.raises(PhysdynError, match="pass --resume to continue it"):
         prepare_run_directory(run, resume=False, overwrite=False)
     assert (run / "config.yaml").read_text() == "name: pre\n"
+
+
+def test_export_keeps_what_prediction_needs_and_nothing_to_resume(quickstart_config, tiny_store, tmp_path):
+    from physdyn.eval.baselines import load_checkpoint
+    from physdyn.eval.evaluate import evaluate
+    from physdyn.models.export import export_checkpoint
+    from physdyn.models.topple_classifier import fit_topple_classifier
+
+    run = fit(quickstart_config())
+    raw = torch.load(run.last_checkpoint, map_location="cpu", weights_only=False)
+    assert "optimizer_states" in raw
+    raw["topple_classifier"] = fit_topple_classifier(load_store(tiny_store))[0].to_dict()
+    full = tmp_path / "full.ckpt"
+    torch.save(raw, full)
+    slim = export_checkpoint(full, tmp_path / "slim.ckpt")
+    kept = torch.load(slim, map_location="cpu", weights_only=False)
+    assert "optimizer_states" not in kept and "loops" not in kept and "topple_classifier" in kept
+    assert slim.stat().st_size < full.stat().st_size
+    a, b = evaluate(load_checkpoint(full), tiny_store, "test"), evaluate(load_checkpoint(slim), tiny_store, "test")
+    assert a["headline"] == b["headline"] and a["topple"] == b["topple"]
+    with pytest.raises(PhysdynError, match="exists; pass --overwrite"):
+        export_checkpoint(full, slim)
+
+
+def test_trainer_keys_physdyn_sets_itself_are_refused_by_name(tiny_store, tmp_path):
+    from physdyn.models.training import RESERVED_TRAINER_KEYS
+
+    for key in RESERVED_TRAINER_KEYS:
+        with pytest.raises(ConfigError, match=f"trainer.{key}"):
+            fit(load_experiment_config(QUICKSTART, shrunk_overrides(tiny_store, tmp_path / key, f"trainer.{key}=1")))
+        assert not (tmp_path / key).exists()
+
+
+def test_early_stopping_ends_a_run_that_stops_improving(quickstart_config):
+    # An improvement must exceed 1.0 in loss to count, so patience 1 stops the run after two rounds.
+    run = fit(quickstart_config("trainer.max_steps=200", "trainer.val_check_interval=2", "early_stopping.enabled=true",
+                                "early_stopping.patience=1", "early_stopping.min_delta=1.0"))
+    steps = json.loads((run.out_dir / "finished.json").read_text())
+    assert run.last_checkpoint is not None
+    assert steps["global_step"] <= 6, steps  # rounds at steps 2 and 4: no improvement of 1.0, stop
