@@ -73,3 +73,13 @@ def test_the_wheel_ships_every_preset_and_the_viewer_script(tmp_path):
     for preset in (REPO / "configs").glob("*/*.yaml"):
         assert f"physdyn/presets/{preset.parent.name}/{preset.name}" in names, preset
     assert "physdyn/eval/viewer.js" in names and "physdyn/assets/bundled.ckpt" in names
+
+
+def test_defaults_that_include_each_other_are_a_one_line_error(tmp_path):
+    (tmp_path / "a.yaml").write_text("defaults: [b.yaml]\nseed: 1\n")
+    (tmp_path / "b.yaml").write_text("defaults: [a.yaml]\nseed: 2\n")
+    (tmp_path / "self.yaml").write_text("defaults: [self.yaml]\n")
+    for name in ("a.yaml", "self.yaml"):
+        with pytest.raises(ConfigError, match="cycle") as info:
+            load_config(DataConfig, tmp_path / name)
+        assert "\n" not in str(info.value)
