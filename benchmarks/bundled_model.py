@@ -14,7 +14,7 @@ import time
 import numpy as np
 
 from physdyn.eval.evaluate import compare
-from physdyn.eval.predict import load_predictor
+from physdyn.predict.predictor import load_predictor
 
 
 def main() -> None:

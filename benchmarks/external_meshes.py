@@ -35,7 +35,7 @@ from physdyn.data.store import load_store
 from physdyn.errors import PhysdynError
 from physdyn.eval.baselines import coulomb_slide
 from physdyn.eval.metrics import rotation_angle_deg
-from physdyn.eval.predict import PredictionWarning, load_predictor, prepare_body
+from physdyn.predict.predictor import PredictionWarning, load_predictor, prepare_body
 from physdyn.sim.generate import generate_dataset
 
 NAMED = {  # file under pybullet_data -> the URDF scale it is used at

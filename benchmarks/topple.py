@@ -20,7 +20,7 @@ from physdyn.data.store import load_store
 from physdyn.eval import metrics as M
 from physdyn.eval.baselines import load_checkpoint
 from physdyn.eval.evaluate import evaluate, select_sequences
-from physdyn.eval.predict import BUNDLED_CHECKPOINT
+from physdyn.predict.predictor import BUNDLED_CHECKPOINT
 from physdyn.models.topple_classifier import FEATURE_NAMES, best_threshold, fit_topple_classifier, store_features
 
 

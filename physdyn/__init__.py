@@ -6,7 +6,7 @@ __version__ = "0.1.0"
 def __getattr__(name: str):
     # Lazy: `import physdyn` stays light; torch and the model load only when a predictor is asked for.
     if name == "load_predictor":
-        from physdyn.eval.predict import load_predictor
+        from physdyn.predict.predictor import load_predictor
 
         return load_predictor
     raise AttributeError(f"module 'physdyn' has no attribute {name!r}")

@@ -214,7 +214,7 @@ def test_there_are_at_least_sixty_cases():
 
 def test_the_python_api_refuses_the_same_values(workspace):
     from physdyn.config import DataConfig, load_config
-    from physdyn.eval.predict import PredictionError, load_predictor
+    from physdyn.predict.predictor import PredictionError, load_predictor
 
     with pytest.raises(PhysdynError, match="rate_hz"):
         load_config(DataConfig, DATA, ["rate_hz=0"])
@@ -250,7 +250,7 @@ def test_open3d_that_cannot_load_is_one_line_with_the_fix_before_any_work(worksp
 
 
 def test_an_unexpected_error_is_one_line_pointing_to_debug_which_shows_the_traceback(workspace, capsys, monkeypatch):
-    import physdyn.eval.predict as predict_module
+    import physdyn.predict.predictor as predict_module
 
     def broken(*args, **kwargs):
         raise KeyError("something physdyn did not foresee")

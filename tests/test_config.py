@@ -72,7 +72,7 @@ def test_the_wheel_ships_every_preset_and_the_viewer_script(tmp_path):
     names = set(zipfile.ZipFile(next(tmp_path.glob("physdyn-*.whl"))).namelist())
     for preset in (REPO / "configs").glob("*/*.yaml"):
         assert f"physdyn/presets/{preset.parent.name}/{preset.name}" in names, preset
-    assert "physdyn/eval/viewer.js" in names and "physdyn/assets/bundled.ckpt" in names
+    assert "physdyn/viz/viewer.js" in names and "physdyn/assets/bundled.ckpt" in names
 
 
 def test_defaults_that_include_each_other_are_a_one_line_error(tmp_path):

@@ -86,7 +86,7 @@ def _warnings(notes: list, prefix: str = "") -> None:
 def run_one(args: argparse.Namespace) -> int:
     import warnings
 
-    from physdyn.eval.predict import (as_vector, check_orientation, check_output_path, check_seconds, load_predictor,
+    from physdyn.predict.predictor import (as_vector, check_orientation, check_output_path, check_seconds, load_predictor,
                                       prepare_body, summary, write_prediction)
 
     # Every check that needs no model comes first, so bad input fails fast and writes nothing.
@@ -97,7 +97,7 @@ def run_one(args: argparse.Namespace) -> int:
     if args.out:
         check_output_path(args.out, args.overwrite)
     if args.render:
-        from physdyn.eval.render import check_animation_path
+        from physdyn.viz.render import check_animation_path
 
         check_animation_path(args.render, args.overwrite)
     with warnings.catch_warnings(record=True) as notes:
@@ -113,7 +113,7 @@ def run_one(args: argparse.Namespace) -> int:
     else:
         print("nothing written; pass --out FILE (.json, .npz or .csv) to save the trajectory")
     if args.render:
-        from physdyn.eval.render import render_animation
+        from physdyn.viz.render import render_animation
 
         print(f"wrote {render_animation(body, result, args.render, fps=args.fps, overwrite=args.overwrite)}")
     return 0
@@ -126,7 +126,7 @@ def run_batch(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from physdyn.errors import PhysdynError
-    from physdyn.eval.predict import load_predictor, write_prediction
+    from physdyn.predict.predictor import load_predictor, write_prediction
 
     requests = Path(args.batch).expanduser()
     if not requests.is_file():
@@ -176,7 +176,7 @@ def run_batch(args: argparse.Namespace) -> int:
         try:
             written = [write_prediction(results[r["number"]], r["out"], overwrite=args.overwrite)]
             if r["render"] is not None:
-                from physdyn.eval.render import render_animation
+                from physdyn.viz.render import render_animation
 
                 written.append(render_animation(r["body"], results[r["number"]], r["render"], fps=args.fps, overwrite=args.overwrite))
         except Exception as exc:
@@ -209,7 +209,7 @@ def _read_request(line: str, number: int, base, out_dir, args, bodies: dict) -> 
     from pathlib import Path
 
     from physdyn.errors import PhysdynError
-    from physdyn.eval.predict import as_vector, check_orientation, check_output_path, check_seconds, prepare_body
+    from physdyn.predict.predictor import as_vector, check_orientation, check_output_path, check_seconds, prepare_body
 
     try:
         req = json.loads(line)
@@ -236,7 +236,7 @@ def _read_request(line: str, number: int, base, out_dir, args, bodies: dict) -> 
     check_output_path(out, args.overwrite)
     render = _inside(out_dir, str(req["render"]), "render", number) if req.get("render") else None
     if render is not None:
-        from physdyn.eval.render import check_animation_path
+        from physdyn.viz.render import check_animation_path
 
         check_animation_path(render, args.overwrite)
     request = {

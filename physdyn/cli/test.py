@@ -66,8 +66,8 @@ def _write_viewer(result: dict, kept: dict, data: str, path: str, overwrite: boo
     """The page of the best, median and worst final position error of each category: the very roll-outs
     that were scored."""
     from physdyn.data.store import load_store
-    from physdyn.eval.store_scenes import pick_sequences, store_scenes
-    from physdyn.eval.viewer import write_viewer
+    from physdyn.viz.store_scenes import pick_sequences, store_scenes
+    from physdyn.viz.viewer import write_viewer
 
     model_result = result["results"][result["model"]]
     picked = pick_sequences(model_result["per_sequence"])

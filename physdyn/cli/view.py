@@ -71,7 +71,7 @@ def _from_report(args: argparse.Namespace) -> Path:
     if args.out:
         import shutil
 
-        from physdyn.eval.viewer import check_viewer_path
+        from physdyn.viz.viewer import check_viewer_path
 
         out = check_viewer_path(args.out, args.overwrite)
         shutil.copyfile(page, out)
@@ -90,8 +90,8 @@ def _find_mesh(recorded: str, prediction: Path) -> Path | None:
 
 def _from_predictions(args: argparse.Namespace) -> Path:
     from physdyn.errors import PhysdynError
-    from physdyn.eval.predict import read_prediction
-    from physdyn.eval.viewer import check_viewer_path, scene_from_prediction, write_viewer
+    from physdyn.predict.predictor import read_prediction
+    from physdyn.viz.viewer import check_viewer_path, scene_from_prediction, write_viewer
     from physdyn.geometry.mesh_io import load_mesh
 
     files = [Path(s) for s in args.source]
@@ -130,8 +130,8 @@ def _from_store(args: argparse.Namespace) -> Path:
     from physdyn.data.store import load_store
     from physdyn.errors import PhysdynError
     from physdyn.eval.baselines import checkpoint_and_store
-    from physdyn.eval.store_scenes import rollout_scenes
-    from physdyn.eval.viewer import check_viewer_path, write_viewer
+    from physdyn.viz.store_scenes import rollout_scenes
+    from physdyn.viz.viewer import check_viewer_path, write_viewer
 
     if not (args.checkpoint and args.sims):
         raise PhysdynError("--checkpoint and --sims go together: the model to roll out and the simulations to show")

@@ -154,7 +154,7 @@ def plot_errors_per_category(comparison: dict, path: Path) -> None:
 
 REPORT_FILES = {"metrics": "metrics.json", "report": "report.md",
                 "error_vs_time": "rollout_error_vs_time.png", "per_category": "errors_per_category.png"}
-VIEWER_FILE = "viewer.html"  # written beside the report by `physdyn test` (physdyn.eval.store_scenes)
+VIEWER_FILE = "viewer.html"  # written beside the report by `physdyn test` (physdyn.viz.store_scenes)
 
 
 def check_report_target(out_dir: str | Path, overwrite: bool = False) -> None:

@@ -11,7 +11,7 @@ from PIL import Image
 
 import physdyn
 from physdyn.errors import PhysdynError
-from physdyn.eval.predict import (PredictionError, PredictionWarning, Predictor, load_predictor,
+from physdyn.predict.predictor import (PredictionError, PredictionWarning, Predictor, load_predictor,
                                   read_prediction, write_prediction)
 from physdyn.geometry.rotations import quat_to_matrix
 from physdyn.models.training import fit, load_experiment_config
@@ -170,7 +170,7 @@ def test_bad_values_are_refused_where_they_enter(checkpoint, meshes):
 
 
 def test_an_installation_without_the_bundled_model_says_so(tmp_path, monkeypatch):
-    import physdyn.eval.predict as P
+    import physdyn.predict.predictor as P
 
     monkeypatch.setattr(P, "BUNDLED_CHECKPOINT", tmp_path / "bundled.ckpt")  # as if the asset were left out
     with pytest.raises(PhysdynError, match="no bundled model.*--checkpoint"):
@@ -257,7 +257,7 @@ def test_bad_input_exits_with_one_line_and_writes_nothing(case, checkpoint, mesh
 def test_the_bundled_model_ships_and_predicts_a_users_mesh(tmp_path):
     """`physdyn predict` works right after install: the packaged checkpoint loads and rolls out."""
     import physdyn
-    from physdyn.eval.predict import BUNDLED_CHECKPOINT
+    from physdyn.predict.predictor import BUNDLED_CHECKPOINT
 
     assert BUNDLED_CHECKPOINT.is_file() and BUNDLED_CHECKPOINT.stat().st_size < 10e6  # "a few MB"
     predictor = physdyn.load_predictor()

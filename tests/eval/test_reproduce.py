@@ -10,7 +10,7 @@ import time
 import pytest
 import torch
 
-from physdyn.eval import reproduce as R
+from physdyn.experiments import reproduce as R
 from tests.conftest import run_cli
 
 torch.set_num_threads(1)

@@ -189,7 +189,7 @@ def test_physdyn_test_command_writes_the_report(tiny_store, tiny_checkpoint, tmp
     for png in ("rollout_error_vs_time.png", "errors_per_category.png"):
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # The viewer shows the very roll-outs that were scored: best, median and worst of each category.
-    from physdyn.eval.viewer import read_viewer_data
+    from physdyn.viz.viewer import read_viewer_data
 
     scenes = read_viewer_data(out / "viewer.html")["scenes"]
     per_seq = metrics["results"][metrics["model"]]["per_sequence"]

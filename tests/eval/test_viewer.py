@@ -11,9 +11,9 @@ import trimesh
 
 from physdyn.data.store import load_store
 from physdyn.cli import main
-from physdyn.eval.predict import load_predictor, read_prediction, write_prediction
-from physdyn.eval.store_scenes import pick_sequences, shape_mesh
-from physdyn.eval.viewer import MAX_FACES, ViewerError, read_viewer_data, scene_from_prediction, write_viewer
+from physdyn.predict.predictor import load_predictor, read_prediction, write_prediction
+from physdyn.viz.store_scenes import pick_sequences, shape_mesh
+from physdyn.viz.viewer import MAX_FACES, ViewerError, read_viewer_data, scene_from_prediction, write_viewer
 from tests.conftest import run_cli
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")

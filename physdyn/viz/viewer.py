@@ -70,7 +70,7 @@ class ViewerScene:
     notes: list[str] = field(default_factory=list)
 
     def as_json(self) -> dict[str, Any]:
-        from physdyn.eval.render import decimate
+        from physdyn.viz.render import decimate
 
         vertices, faces = decimate(np.asarray(self.vertices, np.float64), np.asarray(self.faces, np.int64), MAX_FACES)
         used = np.unique(faces)  # a decimated face subset leaves vertices no face uses
@@ -121,7 +121,7 @@ def _bounds(vertices: np.ndarray, com_mesh: np.ndarray, trajectories: Sequence[T
 def scene_from_prediction(result: dict[str, Any], mesh: Any, title: str | None = None) -> ViewerScene:
     """A scene from a prediction (``Predictor.predict``'s dict or ``read_prediction``'s) and its mesh (a
     path, a ``trimesh.Trimesh`` or a ``PreparedBody``, at the scale it was predicted at)."""
-    from physdyn.eval.render import _load
+    from physdyn.viz.render import _load
 
     m = _load(mesh, 1.0)
     sim = result.get("simulated")
@@ -139,7 +139,7 @@ def scene_from_prediction(result: dict[str, Any], mesh: Any, title: str | None =
 
 
 def check_viewer_path(path: str | Path, overwrite: bool = False) -> Path:
-    from physdyn.eval.predict import check_output_path
+    from physdyn.predict.predictor import check_output_path
 
     return check_output_path(path, overwrite, VIEWER_EXTENSIONS, what="viewer page")
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from physdyn.data.store import StoreData
 from physdyn.eval.metrics import TOPPLE_THRESHOLD
-from physdyn.eval.viewer import Trajectory, ViewerScene
+from physdyn.viz.viewer import Trajectory, ViewerScene
 
 COM_TOLERANCE = 1e-4  # m: a rebuilt mesh whose centre of mass moved more is not the stored shape
 

@@ -33,8 +33,8 @@ def ffmpeg_available() -> bool:
 
 def check_animation_path(path: str | Path, overwrite: bool = False) -> Path:
     """Refuse an unsupported extension, an MP4 without ffmpeg, or an existing file, before any work.
-    An .html path is a viewer page (``physdyn.eval.viewer``)."""
-    from physdyn.eval.predict import check_output_path
+    An .html path is a viewer page (``physdyn.viz.viewer``)."""
+    from physdyn.predict.predictor import check_output_path
 
     path = check_output_path(path, overwrite, RENDER_EXTENSIONS, what="animation")
     if path.suffix.lower() == ".mp4" and not ffmpeg_available():
@@ -110,7 +110,7 @@ def render_animation(mesh: Any, result: dict[str, Any], path: str | Path, fps: f
 
     path = check_animation_path(path, overwrite)
     if path.suffix.lower() == ".html":
-        from physdyn.eval.viewer import scene_from_prediction, write_viewer
+        from physdyn.viz.viewer import scene_from_prediction, write_viewer
 
         m = _load(mesh, scale)
         return write_viewer([scene_from_prediction(result, m)], path, title=f"physdyn: {path.stem}", overwrite=overwrite)

@@ -1,5 +1,5 @@
 // physdyn viewer: poses each scene's mesh at the step under the slider (plotly.js draws).
-// Data: the JSON block #physdyn-data, written by physdyn/eval/viewer.py (its docstring gives the layout).
+// Data: the JSON block #physdyn-data, written by physdyn/viz/viewer.py (its docstring gives the layout).
 (function () {
   "use strict";
   const DATA = JSON.parse(document.getElementById("physdyn-data").textContent);
