@@ -457,6 +457,12 @@ class ExperimentConfig:
     trainer: Dict[str, Any] = field(default_factory=dict)  # passed to lightning.Trainer as is
     early_stopping: EarlyStoppingConfig = field(default_factory=EarlyStoppingConfig)
     progress_bar: bool = True
+    # torch CPU threads for the run (0: torch's default, one per core). The contact prior's loop of small
+    # tensor operations trains faster on one thread than on two (docs/training.md, "Throughput").
+    cpu_threads: int = 0
+
+
+VALUE_RULES[ExperimentConfig] = {"cpu_threads": (_within(0, 1024), "threads, 0 (torch's default) to 1024")}
 
 
 @dataclass

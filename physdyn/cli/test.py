@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from physdyn.data import SPLITS  # a constant of a package whose __init__ imports nothing heavy
 
@@ -54,6 +55,8 @@ def run(args: argparse.Namespace) -> int:
     paths = write_report(result, args.out, overwrite=args.overwrite)
     if kept is not None:
         paths["viewer"] = _write_viewer(result, kept, data, f"{args.out}/{VIEWER_FILE}", args.overwrite)
+    else:
+        _drop_stale_viewer(Path(args.out) / VIEWER_FILE)
     head = result["results"][result["model"]]["headline"]
     print(f"{result['model']} on {head['count']} non-toppling {args.split} sequences: "
           f"position {head['position']:.4g} m/step, final position (median) {head['final_position_m_median']:.4g} m")
@@ -75,3 +78,18 @@ def _write_viewer(result: dict, kept: dict, data: str, path: str, overwrite: boo
                           [i for i, _ in picked], [label for _, label in picked])
     title = f"{result['model']} on {model_result['store']} ({model_result['split']} split)"
     return write_viewer(scenes, path, title=title, overwrite=overwrite)
+
+
+def _drop_stale_viewer(page: Path) -> None:
+    """A report replaced with --no-viewer must not keep the page of the evaluation it replaced; only a
+    physdyn viewer page is removed (anything else of that name is the user's)."""
+    from physdyn.viz.viewer import ViewerError, read_viewer_data
+
+    if page.is_file():
+        try:
+            read_viewer_data(page)
+        except (ViewerError, UnicodeDecodeError, ValueError):
+            return
+        page.unlink()
+        print(f"removed {page}: it showed the evaluation this report replaces")
+

@@ -164,7 +164,7 @@ def prepare_run_directory(out_dir: Path, resume: bool, overwrite: bool, what: st
 
 
 # Keys a resumed run may change: how long it trains and how it reports, not what it learns.
-RESUMABLE_KEYS = ("trainer.max_steps", "trainer.max_epochs", "trainer.val_check_interval", "progress_bar",
+RESUMABLE_KEYS = ("trainer.max_steps", "trainer.max_epochs", "trainer.val_check_interval", "progress_bar", "cpu_threads",
                   "data.num_workers", "ckpt_path", "out_dir")
 
 
@@ -389,6 +389,8 @@ def fit(config: ExperimentConfig, resume: bool = False, overwrite: bool = False,
     if ckpt_path is not None and not ckpt_path.is_file():
         raise ConfigError(f"config key 'ckpt_path': no checkpoint at {ckpt_path}")
     lightning.seed_everything(cfg.seed, workers=True, verbose=False)
+    if cfg.cpu_threads > 0:
+        torch.set_num_threads(int(cfg.cpu_threads))
     datamodule = DynamicsDataModule(cfg.data, store=store)
     datamodule.setup("fit")  # before touching out_dir: a bad store or category leaves an old run intact
     if resume and is_global_zero_process():

@@ -201,6 +201,10 @@ def test_physdyn_test_command_writes_the_report(tiny_store, tiny_checkpoint, tmp
         final = np.asarray(scene["predicted"]["com_position"][-1]) - np.asarray(scene["reference"]["com_position"][-1])
         np.testing.assert_allclose(np.linalg.norm(final), per_seq["final.position_m"][i], atol=1e-5)
         np.testing.assert_allclose(scene["reference"]["com_position"], store_data.com_position[store_data.frames(sim)], atol=1e-6)
+    # replaced without a viewer: the old page goes with the evaluation it showed
+    proc = run_cli("test", "--checkpoint", tiny_checkpoint, "--data", tiny_store, "--out", str(out), "--overwrite", "--no-viewer")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert not (out / "viewer.html").exists() and (out / "metrics.json").is_file()
     bad = tmp_path / "bad.ckpt"
     torch.save({"weights": [1, 2]}, bad)
     proc = run_cli("test", "--checkpoint", str(bad), "--data", tiny_store, "--out", str(tmp_path / "x"))

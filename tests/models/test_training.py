@@ -344,3 +344,14 @@ def test_early_stopping_ends_a_run_that_stops_improving(quickstart_config):
     steps = json.loads((run.out_dir / "finished.json").read_text())
     assert run.last_checkpoint is not None
     assert steps["global_step"] <= 6, steps  # rounds at steps 2 and 4: no improvement of 1.0, stop
+
+
+def test_cpu_threads_sets_torchs_threads_for_the_run(quickstart_config):
+    before = torch.get_num_threads()
+    try:
+        fit(quickstart_config("cpu_threads=1", "trainer.max_steps=1"))
+        assert torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(before)
+    with pytest.raises(ConfigError, match="cpu_threads"):
+        quickstart_config("cpu_threads=-2")
