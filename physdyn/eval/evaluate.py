@@ -291,7 +291,8 @@ def compare(model: Any, store: StoreData | str, baselines: Sequence[Any] = ("sta
     results: dict[str, dict] = {}
     say = progress or (lambda line: None)
     # Bad input (a split, a category, a warm start) is refused before any progress line is printed.
-    check_compatible(resolve_predictor(model), store, select_sequences(store, split, categories), warm_start)
+    model = resolve_predictor(model)  # once: a checkpoint path is not loaded again by evaluate
+    check_compatible(model, store, select_sequences(store, split, categories), warm_start)
     total = 1 + len(baselines)
     say(f"evaluating the model on the {split} split of {store.url} (1 of {total})")
     model_result = evaluate(model, store, split, warm_start, categories, keep_trajectories=keep_trajectories, **kwargs)
