@@ -25,6 +25,7 @@ from physdyn.errors import ConfigError
 from physdyn.models.losses import dynamics_loss
 from physdyn.models.priors import SHAPE_PRIORS, contact_changes, contact_geometry, prior_changes
 from physdyn.models.rotations import quat_multiply, rotation_6d, rotvec_to_quat
+from physdyn.models.single_rollout import SingleRollout
 from physdyn.registry import ENCODERS, HEADS, PREDICTORS
 
 
@@ -282,13 +283,25 @@ class DynamicsModel(LightningModule):
         velocities fed at each step, ``topple_probability`` (B, S) (the label of step t+1) or None.
         """
         was_training = self.training
-        self.eval()
+        if was_training:  # eval() walks every submodule: leave an eval-mode model alone
+            self.eval()
         try:
             with torch.inference_mode():
+                if len(points) == 1 and SingleRollout.supports(self):
+                    return self._single_rollout(points, linear_velocity0, angular_velocity0, steps, warm_linear, warm_angular)
                 return self._rollout_changes(points, linear_velocity0, angular_velocity0, steps, warm_linear, warm_angular)
         finally:
             if was_training:
                 self.train()
+
+    def _single_rollout(self, points, linear_velocity0, angular_velocity0, steps, warm_linear, warm_angular):
+        """One object: the same roll-out on numpy and Python numbers (``physdyn.models.single_rollout``)."""
+        feature = self.encode(torch.as_tensor(points, dtype=torch.float32, device=self.device))
+        as64 = lambda x: None if x is None else np.asarray(torch.as_tensor(x).cpu(), np.float64)  # noqa: E731
+        warm_v, warm_w = as64(warm_linear), as64(warm_angular)
+        out = SingleRollout.of(self).run(feature, as64(linear_velocity0).reshape(3), as64(angular_velocity0).reshape(3),
+                                         steps, None if warm_v is None else warm_v[0], None if warm_w is None else warm_w[0])
+        return {k: None if x is None else torch.from_numpy(x) for k, x in out.items()}
 
     def _rollout_changes(self, points, linear_velocity0, angular_velocity0, steps, warm_linear, warm_angular):
         device, f64 = self.device, torch.float64

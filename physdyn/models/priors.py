@@ -46,6 +46,7 @@ SUPPORT_DEPTH = 0.005     # m: points this close to the lowest one carry the wei
 PRESSURE_LEAN = 0.5       # the centre of pressure leans by this times mu * (height of the centre of mass)
 SPIN_INERTIA = 0.8        # I_zz / m as this times the points' mean squared horizontal radius
 CONTACT_SUBSTEPS = 16     # per recorded step: 1/240 s at 15 Hz
+AT_REST = 1e-8            # m/s and rad/s: below both a one-object step takes the motion away at once
 
 
 def prior_changes(kind: str, linear_velocity: torch.Tensor, angular_velocity: torch.Tensor, dt: float,
@@ -157,12 +158,16 @@ def contact_changes(linear_velocity: torch.Tensor, angular_velocity: torch.Tenso
     weights = base_weights * (1.0 + ox * ax + oy * ay).clamp_min(0.0)
     weights = weights / weights.sum(-1, keepdim=True).clamp_min(1e-12)
     stiffness = decel * h / spin_inertia[..., None]
+    # Below `stick` friction scales down with the slip, so a stopping point rests instead of chattering. A
+    # sub-step then removes the slip over the footprint's effective mass (1 + sum w r^2 / I per unit mass):
+    # at slip_scale alone, a contact far from the vertical through the centre of mass overshot, and a body
+    # at rest swapped ever larger slide and spin between sub-steps (x4 per two at r^2 / I = 4).
+    stick = slip_scale * (1.0 + (weights * (r.abs() ** 2)).sum(-1, keepdim=True) / spin_inertia[..., None])
     rr = r
     for _ in range(CONTACT_SUBSTEPS):
         rel = u + 1j * om * rr
         slip = rel.abs()
-        # below slip_scale friction scales down with the slip, so a stopping point rests instead of chattering
-        pull = weights * rel * ((slip / slip_scale).clamp(max=1.0) / slip.clamp_min(1e-9))
+        pull = weights * rel * ((slip / stick).clamp(max=1.0) / slip.clamp_min(1e-9))
         u = u - decel * h * pull.sum(-1, keepdim=True)  # force per unit mass
         spun = om - stiffness * (rr.conj() * pull).sum(-1, keepdim=True).imag
         om = torch.where(spun * om < 0, torch.zeros_like(om), spun)  # friction stops a spin, never reverses it
@@ -180,6 +185,10 @@ def _contact_changes_one(v: list, w: list, q: list, geometry: list, dt: float, f
                          gravity: float) -> list:
     """``contact_changes`` for one object and one step on Python numbers (complex for horizontal vectors),
     operation for operation: the 12 changes as a list."""
+    if math.hypot(v[0], v[1]) < AT_REST and abs(w[2]) < AT_REST:
+        # At rest (half the steps of a 3 s roll-out): friction takes what is left of the motion away within
+        # the step; the sub-steps give the same velocities to within AT_REST, positions to AT_REST * dt.
+        return [-v[0], -v[1], -v[2], -w[0], -w[1], -w[2], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
     K = (len(geometry) - 2) // 4
     qx, qy, qz, qw = q
     r = []
@@ -210,20 +219,26 @@ def _contact_changes_one(v: list, w: list, q: list, geometry: list, dt: float, f
     total = max(sum(weights), 1e-12)
     weights = [x / total for x in weights]
     stiffness = decel * h / spin_inertia
+    stick = slip_scale * (1.0 + sum(wk * abs(rk) ** 2 for wk, rk in zip(weights, r)) / spin_inertia)
+    pairs = [(wk, rk) for wk, rk in zip(weights, r) if wk > 0.0]  # a weightless point pulls nothing
     for _ in range(CONTACT_SUBSTEPS):
-        pulls = []
-        for wk, rk in zip(weights, r):
+        pull, torque = 0j, 0.0
+        for wk, rk in pairs:
             rel = u + 1j * om * rk
             slip = abs(rel)
-            pulls.append(wk * rel * (min(slip / slip_scale, 1.0) / max(slip, 1e-9)))
-        u = u - decel * h * sum(pulls)
-        spun = om - stiffness * sum((rk.conjugate() * pk).imag for rk, pk in zip(r, pulls))
+            # min(slip / stick, 1) / max(slip, 1e-9), with comparisons instead of calls
+            pk = wk * rel * ((slip / stick if slip < stick else 1.0) / (slip if slip > 1e-9 else 1e-9))
+            pull += pk
+            torque += rk.real * pk.imag - rk.imag * pk.real  # Im(conj(r) f)
+        u = u - decel * h * pull
+        spun = om - stiffness * torque
         om = 0.0 if spun * om < 0 else spun
         dp = dp + u * h
         turn = om * h
         yaw += turn
-        spin = complex(math.cos(turn), math.sin(turn))
-        r = [rk * spin for rk in r]
+        if turn:
+            spin = complex(math.cos(turn), math.sin(turn))
+            pairs = [(wk, rk * spin) for wk, rk in pairs]
     du = u - u0
     return [du.real, du.imag, -v[2], -w[0], -w[1], om - om0, dp.real, dp.imag, 0.0, 0.0, 0.0, yaw]
 

@@ -259,7 +259,7 @@ def test_tiny_training_run_lowers_the_rollout_error(tiny_store, tmp_path):
 def test_the_one_object_contact_prior_is_the_tensor_one_to_rounding():
     # A one-at-a-time roll-out takes the contact prior on Python numbers; batches and training the tensor
     # loop. Both must give the same changes: resting, slow, sliding, spinning and tumbling states.
-    from physdyn.models.priors import contact_changes, contact_geometry
+    from physdyn.models.priors import AT_REST, contact_changes, contact_geometry
 
     torch.manual_seed(0)
     for trial in range(60):
@@ -268,9 +268,34 @@ def test_the_one_object_contact_prior_is_the_tensor_one_to_rounding():
         v = torch.randn(1, 1, 3, dtype=torch.float64) * (2.0 if trial % 3 else 0.005)
         w = torch.randn(1, 1, 3, dtype=torch.float64) * (5.0 if trial % 2 else 0.02)
         q = torch.randn(1, 1, 4, dtype=torch.float64)
+        if trial % 5 == 0:  # all but at rest on its base, as a slide leaves it (the shortcut's case)
+            v, w = v * 1e-9, w * 1e-9
+            q[..., :2] = 0.0  # turned about the vertical only
         q = q / q.norm()
         with torch.no_grad():
             one = contact_changes(v, w, q, geometry, 1 / 15, 0.25)
         batch = contact_changes(v.expand(2, 1, 3), w.expand(2, 1, 3), q.expand(2, 1, 4), geometry.expand(2, -1), 1 / 15, 0.25)
-        torch.testing.assert_close(one, batch[:1], rtol=0, atol=1e-10)
+        if trial % 5 == 0:  # at rest the one-object path stops the motion at once, where the sub-steps
+            # trade the last 1e-8 m/s of slide for spin through the footprint's lever (r / I ~ 30 / m)
+            torch.testing.assert_close(one[..., :6], batch[:1, :, :6], rtol=0, atol=100 * AT_REST)
+            torch.testing.assert_close(one[..., 6:], batch[:1, :, 6:], rtol=0, atol=AT_REST)
+        else:
+            torch.testing.assert_close(one, batch[:1], rtol=0, atol=1e-10)
         assert one.dtype == torch.float64 and one.shape == (1, 1, 12)
+
+
+def test_a_body_at_rest_on_a_far_contact_stays_at_rest():
+    # One support point 0.16 m from the vertical through the centre of mass, spin inertia a quarter of its
+    # r^2: friction's stick regime used to overshoot and swap slide and spin, growing x4 per two sub-steps.
+    geometry = torch.tensor([[0.158, -0.034, -0.21] * 4 + [1.0, 0.0, 0.0, 0.0, 0.0063, 0.21]], dtype=torch.float64)
+    v = torch.tensor([[[-1.7e-9, 6e-10, 0.0]]], dtype=torch.float64)
+    w = torch.tensor([[[0.0, 0.0, 6.5e-9]]], dtype=torch.float64)
+    q = torch.tensor([[[0.0, 0.0, 0.0, 1.0]]], dtype=torch.float64)
+    for _ in range(20):
+        c = contact_changes(v.expand(2, 1, 3), w.expand(2, 1, 3), q.expand(2, 1, 4), geometry.expand(2, -1), 1 / 15, 0.25)[:1]
+        v, w = v + c[..., 0:3], w + c[..., 3:6]
+    assert float(v.norm()) < 1e-8 and float(w.norm()) < 1e-8
+    # while a real slide on the same contact still slides and stops
+    c = contact_changes(torch.tensor([[[1.0, 0.0, 0.0]]], dtype=torch.float64), torch.zeros(1, 1, 3, dtype=torch.float64),
+                        q, geometry, 1 / 15, 0.25)
+    assert 0.5 * 2.45 / 15 < -float(c[0, 0, 0]) <= 2.45 / 15 + 1e-9

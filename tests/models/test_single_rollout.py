@@ -1,0 +1,85 @@
+"""One object's roll-out on numpy (``physdyn.models.single_rollout``) gives the torch loop's numbers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from physdyn.data.normalization import compute_normalization
+from physdyn.data.store import load_store
+from physdyn.data.windows import world_oriented_points
+from physdyn.eval.evaluate import gather_truth, select_sequences
+from physdyn.models.dynamics_module import DynamicsModel
+from physdyn.models.single_rollout import SingleRollout
+
+RECIPES = [
+    # the shipped recipe: contact prior fed the orientation, rest gate, topple head
+    ["model.prior=contact", "model.orientation_input=true", "model.residual_gate_linear=0.1",
+     "model.residual_gate_angular=1.0"],
+    ["model.prior=planar", "data.normalization=std_inputs"],
+    ["model.prior=none", "model.head.name=no_topple"],
+]
+
+
+@pytest.fixture(scope="module")
+def store(tiny_store):
+    return load_store(tiny_store)
+
+
+def _model(quickstart_config, store, overrides) -> DynamicsModel:
+    model = DynamicsModel(quickstart_config(*overrides), compute_normalization(store, np.arange(store.num_sims)),
+                          {"rate_hz": store.rate_hz, "friction": 0.25}).eval()
+    torch.manual_seed(0)
+    with torch.no_grad():  # a residual that matters (a model with a prior starts with it at zero)
+        model.head.linear.weight.normal_(0.0, 0.05)
+        model.head.linear.bias.normal_(0.0, 0.05)
+    return model
+
+
+def _first_state(store, sim):
+    truth = gather_truth(store, np.array([sim]))
+    points = world_oriented_points(store.points[store.shape_id[[sim]]], truth["orientation_xyzw"][:, 0]).astype(np.float32)
+    return points, truth["linear_velocity"][:, 0], truth["angular_velocity"][:, 0], truth
+
+
+@pytest.mark.parametrize("overrides", RECIPES, ids=lambda o: " ".join(o))
+def test_one_object_rollout_equals_the_torch_loop(quickstart_config, store, overrides):
+    model = _model(quickstart_config, store, overrides)
+    assert SingleRollout.supports(model)
+    for sim in select_sequences(store, "test")[:3]:
+        points, v0, w0, truth = _first_state(store, sim)
+        warm = (torch.as_tensor(truth["linear_velocity"][:, 1:3]), torch.as_tensor(truth["angular_velocity"][:, 1:3]))
+        for warm_v, warm_w in ((None, None), warm):
+            fast = model.rollout_changes(points, v0, w0, 25, warm_v, warm_w)  # B = 1: the numpy roll-out
+            with torch.inference_mode():
+                slow = model._rollout_changes(points, v0, w0, 25, warm_v, warm_w)  # the torch loop
+            for key in ("changes", "fed", "topple_probability"):
+                if slow[key] is None:
+                    assert fast[key] is None
+                    continue
+                np.testing.assert_allclose(fast[key].numpy(), slow[key].numpy(), rtol=1e-5, atol=1e-5, err_msg=key)
+    moved = fast["changes"][0, :, 6:9].sum(0).norm()
+    assert moved > 1e-2  # it slid: not a trivial match of two zero roll-outs
+
+
+def test_the_cached_weights_follow_a_changed_model(quickstart_config, store):
+    model = _model(quickstart_config, store, RECIPES[1])
+    points, v0, w0, _ = _first_state(store, int(select_sequences(store, "test")[0]))
+    before = model.rollout_changes(points, v0, w0, 10)["changes"].clone()
+    assert SingleRollout.of(model) is SingleRollout.of(model)  # built once
+    with torch.no_grad():  # an optimiser step changes parameters in place
+        model.head.linear.bias.add_(0.1)
+    after = model.rollout_changes(points, v0, w0, 10)["changes"]
+    with torch.inference_mode():
+        reference = model._rollout_changes(points, v0, w0, 10, None, None)["changes"]
+    assert not torch.allclose(before, after)
+    np.testing.assert_allclose(after.numpy(), reference.numpy(), rtol=1e-5, atol=1e-5)
+
+
+def test_other_predictors_take_the_torch_loop(quickstart_config, store):
+    model = _model(quickstart_config, store, ["model.predictor.name=mlp", "model.predictor.params.num_layers=2"])
+    assert not SingleRollout.supports(model)
+    points, v0, w0, _ = _first_state(store, int(select_sequences(store, "test")[0]))
+    out = model.rollout_changes(points, v0, w0, 5)
+    assert out["changes"].shape == (1, 5, 12) and torch.isfinite(out["changes"]).all()
