@@ -34,9 +34,8 @@ def _rotation_6d(x: float, y: float, z: float, w: float) -> list[float]:
             2 * (x * y - z * w), 1 - 2 * (x * x + z * z), 2 * (y * z + x * w)]
 
 
-def _compose(dtheta: np.ndarray, q: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
-    """Exp(dtheta) * q, normalised: ``quat_multiply(rotvec_to_quat(dtheta), q)`` on Python numbers."""
-    rx, ry, rz = float(dtheta[0]), float(dtheta[1]), float(dtheta[2])
+def _compose(rx: float, ry: float, rz: float, q: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
+    """Exp(r) * q, normalised: ``quat_multiply(rotvec_to_quat(r), q)`` on Python numbers."""
     angle = math.sqrt(rx * rx + ry * ry + rz * rz)
     s = 0.5 - angle * angle / 48.0 if angle < 1e-4 else math.sin(0.5 * angle) / angle
     ax, ay, az, aw = rx * s, ry * s, rz * s, math.cos(0.5 * angle)
@@ -144,10 +143,11 @@ class SingleRollout:
             changes[t] = si
             if topple is not None:
                 topple[t] = 1.0 / (1.0 + math.exp(-float(out[12])))
+            d = si.tolist()
             if self.varying > 6:  # R_{t+1} R_0^T = Exp(dtheta_t) R_t R_0^T, as the pose is integrated
-                turn = _compose(si[9:12], turn)
-            v = [v[i] + si[i] for i in range(3)]
-            w = [w[i] + si[3 + i] for i in range(3)]
+                turn = _compose(d[9], d[10], d[11], turn)
+            v = [v[0] + d[0], v[1] + d[1], v[2] + d[2]]
+            w = [w[0] + d[3], w[1] + d[4], w[2] + d[5]]
         return {"changes": changes[None], "fed": fed[None], "topple_probability": None if topple is None else topple[None]}
 
     def _prior(self, v32: list[float], w32: list[float], q32: list[float] | None, geometry: list[float]) -> np.ndarray:

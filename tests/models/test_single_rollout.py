@@ -28,9 +28,11 @@ def store(tiny_store):
 
 
 def _model(quickstart_config, store, overrides) -> DynamicsModel:
+    # Seeded: the two paths differ by float32 rounding, which a closed loop can grow (the torch loop at
+    # B = 1 and B = 2 differs by up to 5e-5 over 45 steps of the bundled model); these weights stay below 1e-5.
+    torch.manual_seed(0)
     model = DynamicsModel(quickstart_config(*overrides), compute_normalization(store, np.arange(store.num_sims)),
                           {"rate_hz": store.rate_hz, "friction": 0.25}).eval()
-    torch.manual_seed(0)
     with torch.no_grad():  # a residual that matters (a model with a prior starts with it at zero)
         model.head.linear.weight.normal_(0.0, 0.05)
         model.head.linear.bias.normal_(0.0, 0.05)
