@@ -86,10 +86,11 @@ def contact_geometry(points: torch.Tensor) -> torch.Tensor:
     zmin = z.min(dim=1, keepdim=True).values
     touching = z <= zmin + SUPPORT_DEPTH
     # K touching points spread over the footprint by farthest-point sampling in the plane, so a large flat
-    # face keeps its extent and its centre whatever order the cloud lists its points in.
+    # face keeps its extent and its centre. It starts from the touching point farthest from the vertical
+    # through the centre of mass, so the same cloud listed in another order gets the same footprint.
     xy = points[..., :2]
     distance = torch.where(touching, torch.full_like(z, float("inf")), torch.full_like(z, -1.0))
-    pick = torch.argmax(touching.to(torch.int8), dim=1)  # the first touching point
+    pick = torch.argmax(((xy ** 2).sum(-1)).masked_fill(~touching, -1.0), dim=1)
     chosen, fresh = [], []
     for i in range(k):
         chosen.append(pick)

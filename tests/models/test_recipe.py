@@ -299,3 +299,20 @@ def test_a_body_at_rest_on_a_far_contact_stays_at_rest():
     c = contact_changes(torch.tensor([[[1.0, 0.0, 0.0]]], dtype=torch.float64), torch.zeros(1, 1, 3, dtype=torch.float64),
                         q, geometry, 1 / 15, 0.25)
     assert 0.5 * 2.45 / 15 < -float(c[0, 0, 0]) <= 2.45 / 15 + 1e-9
+
+
+def test_the_footprint_does_not_depend_on_the_order_of_the_cloud():
+    # The same cloud listed in another order is the same object: the same footprint, weights and inertia
+    # (farthest-point sampling used to start from whichever touching point came first).
+    rng = np.random.default_rng(3)
+    base = np.c_[rng.uniform(-0.06, 0.06, (200, 2)), np.zeros(200)]  # a flat 12 cm square base
+    rest = np.c_[rng.uniform(-0.03, 0.03, (300, 2)), rng.uniform(0.01, 0.2, 300)]
+    cloud = np.concatenate([base, rest]) - [0.0, 0.0, 0.08]
+    points = torch.tensor(cloud[None])
+    geometry = contact_geometry(points)
+    for seed in range(5):
+        order = np.random.default_rng(seed).permutation(len(cloud))
+        torch.testing.assert_close(contact_geometry(points[:, order]), geometry)
+    K = (geometry.shape[1] - 2) // 4
+    support = geometry[0, : 3 * K].reshape(K, 3)
+    assert float(support[:, :2].abs().max()) > 0.05  # it spans the base, out to its corners
