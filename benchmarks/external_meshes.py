@@ -36,7 +36,7 @@ from physdyn.errors import PhysdynError
 from physdyn.eval.baselines import coulomb_slide
 from physdyn.eval.metrics import rotation_angle_deg
 from physdyn.predict.predictor import PredictionWarning, load_predictor, prepare_body
-from physdyn.sim.generate import generate_dataset
+from physdyn.data.simulated_store import generate_dataset
 
 NAMED = {  # file under pybullet_data -> the URDF scale it is used at
     "bunny.obj": 1.0, "duck_vhacd.obj": 1.0, "teddy2_VHACD_CHs.obj": 1.0, "objects/mug.obj": 1.0,

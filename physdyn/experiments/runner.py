@@ -115,7 +115,7 @@ class SuiteRunner:
 
     def _run_data(self, spec: RunSpec) -> bool:
         from physdyn.data.store import store_exists
-        from physdyn.sim.generate import generate_dataset
+        from physdyn.data.simulated_store import generate_dataset
 
         cfg = data_config(self.scale, spec.short)
         path = store_path(self.out, spec.short)

@@ -113,29 +113,29 @@ def test_an_interrupted_run_is_resumed_and_only_it_is_redone(tiny_suite):
 
 
 def test_an_incomplete_store_is_resumed(tmp_path):
+    from physdyn.data.simulated_store import generate_dataset
     from physdyn.data.store import load_store
-    from physdyn.sim.generate import generate_dataset
 
     scale, path = suite.load_scale("tiny")
     out = tmp_path / "out"
     store = suite.store_path(out, "speakers")
     scale.data["speakers"] = list(scale.data["speakers"]) + ["shapes_per_block=2"]  # two blocks: stop after one
     cfg = suite.data_config(scale, "speakers")
-    import physdyn.sim.generate as G
+    import physdyn.data.simulated_store as G
 
-    original = G._execute
+    original = G.simulate_blocks
 
     def first_block_only(*args, **kwargs):
         for item in original(*args, **kwargs):
             yield item
             raise KeyboardInterrupt
 
-    G._execute = first_block_only
+    G.simulate_blocks = first_block_only
     try:
         with pytest.raises(KeyboardInterrupt):
             generate_dataset(cfg, str(store), workers=1, progress=False)
     finally:
-        G._execute = original
+        G.simulate_blocks = original
     assert not runner._store_complete(store)
     suite_runner = runner.SuiteRunner(scale, path, out, log=lambda _: None)
     outcomes = suite_runner.run([r for r in suite.build_suite() if r.name == "data/speakers"])
