@@ -31,12 +31,13 @@ import pybullet_data
 import trimesh
 
 from physdyn.config import DataConfig, load_config
+from physdyn.data.simulated_store import generate_dataset
 from physdyn.data.store import load_store
-from physdyn.errors import PhysdynError
+from physdyn.errors import PhysdynError, PredictionWarning
 from physdyn.eval.baselines import coulomb_slide
 from physdyn.eval.metrics import rotation_angle_deg
-from physdyn.predict.predictor import PredictionWarning, load_predictor, prepare_body
-from physdyn.sim.generate import generate_dataset
+from physdyn.predict.body import prepare_body
+from physdyn.predict.predictor import load_predictor
 
 NAMED = {  # file under pybullet_data -> the URDF scale it is used at
     "bunny.obj": 1.0, "duck_vhacd.obj": 1.0, "teddy2_VHACD_CHs.obj": 1.0, "objects/mug.obj": 1.0,

@@ -33,7 +33,9 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from external_meshes import NAMED, collect_meshes  # noqa: E402
 
-from physdyn.predict.predictor import load_predictor, prepare_body, simulate_from_state  # noqa: E402
+from physdyn.predict.body import prepare_body  # noqa: E402
+from physdyn.predict.predictor import load_predictor  # noqa: E402
+from physdyn.predict.simulator import simulate_from_state  # noqa: E402
 
 
 def pushes(count: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:

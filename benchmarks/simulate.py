@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 from physdyn.config import DataConfig, load_config
-from physdyn.sim.generate import generate_dataset
+from physdyn.data.simulated_store import generate_dataset
 
 REPO = Path(__file__).resolve().parents[1]
 TARGET_PER_CORE = 60.0

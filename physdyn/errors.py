@@ -15,3 +15,11 @@ class ShapeError(PhysdynError):
 
 class StoreError(PhysdynError):
     """A dataset store that is missing, incomplete, corrupt or would be overwritten."""
+
+
+class PredictionError(PhysdynError):
+    """Bad input to a prediction: a vector, a duration, an output path."""
+
+
+class PredictionWarning(UserWarning):
+    """Something the user should know about a prediction that still runs (e.g. an open mesh)."""

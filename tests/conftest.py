@@ -26,7 +26,7 @@ def tiny_data_config(*extra: str) -> DataConfig:
 @pytest.fixture(scope="session")
 def tiny_store(tmp_path_factory) -> str:
     """Path of a complete, real store: 25 shapes over the five categories, 150 simulated pushes."""
-    from physdyn.sim.generate import generate_dataset
+    from physdyn.data.simulated_store import generate_dataset
 
     out = tmp_path_factory.mktemp("stores") / "tiny.zarr"
     generate_dataset(tiny_data_config(), str(out), workers=1, progress=False)

@@ -214,7 +214,8 @@ def test_there_are_at_least_sixty_cases():
 
 def test_the_python_api_refuses_the_same_values(workspace):
     from physdyn.config import DataConfig, load_config
-    from physdyn.predict.predictor import PredictionError, load_predictor
+    from physdyn.errors import PredictionError
+    from physdyn.predict.predictor import load_predictor
 
     with pytest.raises(PhysdynError, match="rate_hz"):
         load_config(DataConfig, DATA, ["rate_hz=0"])

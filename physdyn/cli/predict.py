@@ -86,8 +86,9 @@ def _warnings(notes: list, prefix: str = "") -> None:
 def run_one(args: argparse.Namespace) -> int:
     import warnings
 
-    from physdyn.predict.predictor import (as_vector, check_orientation, check_output_path, check_seconds, load_predictor,
-                                      prepare_body, summary, write_prediction)
+    from physdyn.predict.body import prepare_body
+    from physdyn.predict.prediction_files import check_output_path, write_prediction
+    from physdyn.predict.predictor import as_vector, check_orientation, check_seconds, load_predictor, summary
 
     # Every check that needs no model comes first, so bad input fails fast and writes nothing.
     lin = as_vector(args.lin_vel, "--lin-vel")
@@ -126,7 +127,8 @@ def run_batch(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from physdyn.errors import PhysdynError
-    from physdyn.predict.predictor import load_predictor, write_prediction
+    from physdyn.predict.prediction_files import write_prediction
+    from physdyn.predict.predictor import load_predictor
 
     requests = Path(args.batch).expanduser()
     if not requests.is_file():
@@ -209,7 +211,9 @@ def _read_request(line: str, number: int, base, out_dir, args, bodies: dict) -> 
     from pathlib import Path
 
     from physdyn.errors import PhysdynError
-    from physdyn.predict.predictor import as_vector, check_orientation, check_output_path, check_seconds, prepare_body
+    from physdyn.predict.body import prepare_body
+    from physdyn.predict.prediction_files import check_output_path
+    from physdyn.predict.predictor import as_vector, check_orientation, check_seconds
 
     try:
         req = json.loads(line)

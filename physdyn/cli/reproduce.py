@@ -19,7 +19,7 @@ details: docs/reproduce.md
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from physdyn.experiments.reproduce import EXPERIMENT_HELP
+    from physdyn.experiments.suite import EXPERIMENT_HELP
 
     listing = "\n".join(f"  {name:<14} {text}" for name, text in EXPERIMENT_HELP.items())
     p = sub.add_parser(
@@ -50,7 +50,8 @@ def run(args: argparse.Namespace) -> int:
     import shlex
     import sys
 
-    from physdyn.experiments.reproduce import run_suite, write_results
+    from physdyn.experiments.results_page import write_results
+    from physdyn.experiments.runner import run_suite
 
     from physdyn.errors import PhysdynError
 

@@ -49,7 +49,7 @@ def clamp_workers(workers: int, local: bool = True) -> int:
 def run(args: argparse.Namespace) -> int:
     from physdyn.cli import split_overrides
     from physdyn.config import DataConfig, load_config, preset_path
-    from physdyn.sim.generate import generate_dataset
+    from physdyn.data.simulated_store import generate_dataset
 
     cfg = load_config(DataConfig, preset_path(args.config, "data"), split_overrides(args.parser, args))
     workers = clamp_workers(args.workers, local=args.executor == "process")

@@ -90,7 +90,7 @@ def _find_mesh(recorded: str, prediction: Path) -> Path | None:
 
 def _from_predictions(args: argparse.Namespace) -> Path:
     from physdyn.errors import PhysdynError
-    from physdyn.predict.predictor import read_prediction
+    from physdyn.predict.prediction_files import read_prediction
     from physdyn.viz.viewer import check_viewer_path, scene_from_prediction, write_viewer
     from physdyn.geometry.mesh_io import load_mesh
 

@@ -1,2 +1,3 @@
-"""Prediction for a user's mesh: ``Predictor`` and ``load_predictor`` (the bundled model by default),
-rigid bodies from mesh files, the simulator beside the model, and the prediction files (JSON, .npz, .csv)."""
+"""Prediction for a user's mesh: ``Predictor`` and ``load_predictor`` (``predictor``, the bundled model by
+default), rigid bodies from mesh files (``body``), the simulator beside the model (``simulator``), and the
+prediction files, JSON, .npz or .csv (``prediction_files``)."""

@@ -1,54 +1,34 @@
-"""Predicting how a user's mesh moves after a push, and writing the prediction file.
+"""Predicting how a user's mesh moves after a push.
 
 ``load_predictor()`` gives a ``Predictor`` around a trained ``DynamicsModel`` (the bundled one by default);
 ``Predictor.predict(mesh, lin_vel, ang_vel, seconds)`` places the object at rest on the ground as the
 conventions say (docs/conventions.md, "Initial condition"), rolls the model out and returns a dict with
-the keys of a prediction file ("Prediction output"). ``compare_sim=True`` adds the same keys from PyBullet,
-started from the same state, under ``simulated``. ``write_prediction`` writes JSON, .npz or .csv (layout:
-docs/predict.md); ``read_prediction`` reads any of the three back.
+the keys of a prediction file ("Prediction output"); ``predict_many`` does R requests as batches.
+``compare_sim=True`` adds the same keys from PyBullet, started from the same state, under ``simulated``
+(``simulator.py``). Mesh to rigid body: ``body.py``; the files: ``prediction_files.py``.
 
 Arrays in a result are float64 numpy arrays: T = round(seconds * rate_hz) + 1 steps, step 0 included.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import os
-import re
 import warnings
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
-from physdyn.errors import PhysdynError
-from physdyn.files import atomic_output, check_writable, jsonable
+from physdyn.errors import PhysdynError, PredictionError, PredictionWarning
+from physdyn.predict.body import PreparedBody, initial_pose, prepare_body
+from physdyn.predict.simulator import SIMULATOR_NAME, simulate_from_state
 
 BUNDLED_CHECKPOINT = Path(__file__).resolve().parents[1] / "assets" / "bundled.ckpt"
-OUTPUT_EXTENSIONS = (".json", ".npz", ".csv")
-STEP_KEYS = ("time", "com_position", "orientation_xyzw", "linear_velocity", "angular_velocity", "topple_probability")
-SCALAR_KEYS = ("rate_hz", "toppled", "com_mesh", "mesh", "mesh_scale", "checkpoint")
-# CSV column suffixes of the per-step vectors.
-_COMPONENTS = {"com_position": "xyz", "orientation_xyzw": "xyzw", "linear_velocity": "xyz", "angular_velocity": "xyz"}
-_CSV_COLUMN_BASE = {"orientation_xyzw": "orientation"}
 DEFAULT_NUM_POINTS = 1024
-POINTS_SEED = 0  # fixed: the same mesh always gets the same cloud, so predictions are reproducible
-SIMULATOR_NAME = "pybullet"
-IN_MEMORY = "<in-memory>"
 MAX_LINEAR_SPEED = 50.0  # m/s; training pushes are 0.5-2 m/s
 MAX_ANGULAR_SPEED = 500.0  # rad/s
 MAX_SECONDS = 600.0  # a pushed object rests within seconds; far longer only allocates
-_CSV_SCALAR = re.compile(r"^# ([A-Za-z_]+): (.*)$")  # "# rate_hz: 15.0": a scalar key and its JSON value
-
-
-class PredictionError(PhysdynError):
-    """Bad input to a prediction: a vector, a duration, an output path."""
-
-
-class PredictionWarning(UserWarning):
-    """Something the user should know about a prediction that still runs (e.g. an open mesh)."""
 
 
 # --------------------------------------------------------------------------------------------------
@@ -90,21 +70,6 @@ def check_orientation(orientation_xyzw: Any) -> np.ndarray:
     return q / norm
 
 
-def check_output_path(path: str | Path, overwrite: bool = False, extensions: Sequence[str] = OUTPUT_EXTENSIONS,
-                      what: str = "output") -> Path:
-    """Refuse an unsupported extension, or an existing file unless ``overwrite``, before any work is done."""
-    path = Path(path).expanduser()
-    ext = path.suffix.lower()
-    if ext not in extensions:
-        raise PredictionError(f"{what} {path}: unsupported extension '{ext or '(none)'}'; use one of {', '.join(extensions)}")
-    if path.is_dir():
-        raise PredictionError(f"{what} {path} is a folder; pass a file name such as {path / ('prediction' + extensions[0])}")
-    if path.exists() and not overwrite:
-        raise PredictionError(f"{what} {path} already exists; pass --overwrite (overwrite=True) to replace it")
-    check_writable(path, what)
-    return path
-
-
 def _per_request(value: Any, count: int, name: str, length: int = 3) -> np.ndarray:
     """(count, length) finite float64 from one vector for every request or one row per request."""
     try:
@@ -140,112 +105,6 @@ def _boolean(value: Any, name: str) -> bool:
 def _short(value: Any) -> str:
     text = " ".join(str(v) for v in np.ravel(value)) if np.ndim(value) else str(value)
     return text if len(text) <= 60 else text[:57] + "..."
-
-
-# --------------------------------------------------------------------------------------------------
-# The object
-# --------------------------------------------------------------------------------------------------
-@dataclass
-class PreparedBody:
-    """A mesh made into a rigid body: cleaned mesh (mesh frame, metres), its ``RigidBodySpec`` and where it
-    came from. ``notes``: one-line warnings (e.g. the convex hull was used for the mass properties)."""
-
-    mesh: Any
-    spec: Any
-    name: str
-    notes: list[str] = field(default_factory=list)
-    scale: float = 1.0  # applied to the file's coordinates to get metres
-    _points: dict[int, np.ndarray] = field(default_factory=dict, repr=False)
-
-    def points_body(self, num_points: int) -> np.ndarray:
-        """(num_points, 3) float32 surface points in the body frame (mesh axes, origin at the com)."""
-        if num_points not in self._points:
-            from physdyn.config import DataConfig
-            from physdyn.geometry.sampling import sample_surface_points
-
-            pts = sample_surface_points(self.mesh, num_points, DataConfig().oversample, seed=POINTS_SEED)
-            self._points[num_points] = (pts - self.spec.com_mesh).astype(np.float32)
-        return self._points[num_points]
-
-
-def prepare_body(mesh: Any, scale: float = 1.0, density: float | None = None) -> PreparedBody:
-    """A mesh file path or ``trimesh.Trimesh`` -> ``PreparedBody``. Exact mass properties of the solid, or
-    of its convex hull (with a note) when the mesh is not a closed volume. Raises ``ShapeError``."""
-    import trimesh
-
-    from physdyn.config import MassConfig
-    from physdyn.errors import ShapeError
-    from physdyn.geometry.mass import solid_mass_properties
-    from physdyn.geometry.mesh_io import check_mesh, load_mesh, prepare_mesh
-    from physdyn.sim.body import RigidBodySpec
-
-    if isinstance(mesh, PreparedBody):
-        return mesh
-    if isinstance(mesh, trimesh.Trimesh):
-        if not np.isfinite(scale) or scale <= 0:
-            raise ShapeError(f"mesh {IN_MEMORY}: scale must be a positive number, got {scale}")
-        name = IN_MEMORY
-        raw = mesh.copy()
-        if scale != 1.0:
-            raw.apply_scale(scale)
-        check_mesh(raw, name)
-    elif isinstance(mesh, (str, os.PathLike)):
-        name = str(mesh)
-        raw = load_mesh(mesh, scale)
-    else:
-        raise PredictionError(f"mesh must be a file path or a trimesh.Trimesh, got {type(mesh).__name__}")
-    prepared = prepare_mesh(raw, name)
-    density = MassConfig().density if density is None else float(density)
-    props = solid_mass_properties(prepared.mesh, prepared.watertight, density, f"mesh {name}")
-    spec = RigidBodySpec.from_mesh(prepared.mesh, props)
-    return PreparedBody(mesh=prepared.mesh, spec=spec, name=name, notes=list(prepared.warnings), scale=float(scale))
-
-
-def initial_pose(spec: Any, orientation_xyzw: np.ndarray) -> np.ndarray:
-    """The centre of mass (3,) of the object at rest in this orientation: lowest point on z = 0, x = y = 0."""
-    from physdyn.sim.trajectory import resting_com_position
-
-    return resting_com_position(spec, orientation_xyzw)
-
-
-# --------------------------------------------------------------------------------------------------
-# Simulation from a given state
-# --------------------------------------------------------------------------------------------------
-def simulate_from_state(spec: Any, orientation_xyzw: np.ndarray, lin_vel: np.ndarray, ang_vel: np.ndarray,
-                        rate_hz: float, num_steps: int, physics: Any = None) -> dict[str, np.ndarray]:
-    """PyBullet from the state right after a push: the body at rest in ``orientation_xyzw`` (mesh frame),
-    given the velocities directly (no impulse), recorded at ``rate_hz`` for ``num_steps`` steps.
-
-    Once the body has been at rest for ``physics.rest_duration`` the rest is padded with the resting pose
-    and zero velocities. Returns ``com_position`` (T, 3), ``orientation_xyzw`` (T, 4) of the mesh frame,
-    ``linear_velocity`` (T, 3), ``angular_velocity`` (T, 3), ``topple_label`` (T,) bool (the 45° rule).
-    """
-    from physdyn.config import PhysicsConfig
-    from physdyn.sim.bullet import pb
-    from physdyn.sim.trajectory import place_at_rest, record, topple_labels
-    from physdyn.sim.world import PhysicsWorld
-
-    phys = physics or PhysicsConfig()
-    with PhysicsWorld(phys) as world:
-        body = world.add_body(spec)
-        place_at_rest(world, body, spec, orientation_xyzw)
-        pb.resetBaseVelocity(body, list(map(float, lin_vel)), list(map(float, ang_vel)), physicsClientId=world.client)
-        traj = record(world, body, spec, rate_hz, max_frames=num_steps)
-    out = {
-        "com_position": traj.com_position,
-        "orientation_xyzw": traj.orientation_xyzw,
-        "linear_velocity": traj.linear_velocity,
-        "angular_velocity": traj.angular_velocity,
-    }
-    recorded = len(traj)
-    if recorded < num_steps:
-        pad = num_steps - recorded
-        for key in ("com_position", "orientation_xyzw"):
-            out[key] = np.concatenate([out[key], np.repeat(out[key][-1:], pad, axis=0)])
-        for key in ("linear_velocity", "angular_velocity"):
-            out[key] = np.concatenate([out[key], np.zeros((pad, 3))])
-    out["topple_label"] = topple_labels(out["orientation_xyzw"])[0]
-    return out
 
 
 # --------------------------------------------------------------------------------------------------
@@ -419,154 +278,6 @@ def load_predictor(checkpoint: Any = None, physics: Any = None, device: str = "c
     if not isinstance(checkpoint, (str, os.PathLike)):
         raise PhysdynError(f"checkpoint must be a path or a DynamicsModel, got {type(checkpoint).__name__}")
     return Predictor(load_checkpoint(checkpoint), name=str(checkpoint), physics=physics, device=device)
-
-
-# --------------------------------------------------------------------------------------------------
-# Files
-# --------------------------------------------------------------------------------------------------
-def _flat(result: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    """``simulated`` nested keys -> ``simulated_<key>`` (npz and CSV cannot nest)."""
-    out: dict[str, Any] = {}
-    for key, value in result.items():
-        if key == "simulated" and isinstance(value, dict):
-            out.update(_flat(value, prefix + "simulated_"))
-        else:
-            out[prefix + key] = value
-    return out
-
-
-def _nest(flat: dict[str, Any]) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    sim: dict[str, Any] = {}
-    for key, value in flat.items():
-        if key.startswith("simulated_"):
-            sim[key[len("simulated_"):]] = value
-        else:
-            out[key] = value
-    if sim:
-        out["simulated"] = sim
-    return out
-
-
-def write_prediction(result: dict[str, Any], path: str | Path, overwrite: bool = False) -> Path:
-    """Write ``result`` to ``path``: JSON, or .npz / .csv by the extension (docs/predict.md).
-
-    Written to a temporary file in the same folder and renamed into place, so a reader never sees half a
-    file. Refuses an existing ``path`` unless ``overwrite``.
-    """
-    path = check_output_path(path, overwrite)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    ext = path.suffix.lower()
-    with atomic_output(path) as tmp, open(tmp, "wb") as fh:
-        if ext == ".json":
-            fh.write(json.dumps(jsonable(result), indent=1).encode())
-        elif ext == ".npz":
-            np.savez(fh, **_npz_arrays(result))
-        else:
-            fh.write(_csv_text(result).encode())
-        if not overwrite and path.exists():
-            raise PredictionError(f"output {path} appeared while writing; pass --overwrite to replace it")
-    return path
-
-
-def _npz_arrays(result: dict[str, Any]) -> dict[str, np.ndarray]:
-    arrays = {}
-    for key, value in _flat(result).items():
-        if value is None:  # a model without a topple head: NaN at every step (see docs/predict.md)
-            value = np.full(len(result["time"]), np.nan)
-        arrays[key] = np.asarray(value)
-    return arrays
-
-
-def _csv_columns(key: str) -> list[str]:
-    """CSV columns of a per-step key: vectors get one column per component (``com_position_x``...,
-    ``orientation_x``...``orientation_w``), scalars one column; a ``simulated_`` prefix is kept."""
-    for name, comps in _COMPONENTS.items():
-        if key == name or key.endswith("_" + name):
-            stem = key[: -len(name)] + _CSV_COLUMN_BASE.get(name, name)
-            return [f"{stem}_{c}" for c in comps]
-    return [key]
-
-
-def _csv_text(result: dict[str, Any]) -> str:
-    flat = _flat(result)
-    T = len(result["time"])
-    lines = ["# physdyn prediction: one row per step; scalars in these comment lines as JSON values"]
-    header: list[str] = []
-    columns: list[np.ndarray] = []
-    for key, value in flat.items():
-        is_step = key.split("simulated_", 1)[-1] in STEP_KEYS
-        if not is_step:
-            lines.append(f"# {key}: {json.dumps(jsonable({key: value})[key])}")
-            continue
-        arr = (np.full(T, np.nan) if value is None else np.asarray(value, dtype=np.float64)).reshape(T, -1)
-        header += _csv_columns(key)
-        columns.append(arr)
-    table = np.concatenate(columns, axis=1)
-    lines.append(",".join(header))
-    for row in table:
-        lines.append(",".join("" if np.isnan(x) else repr(float(x)) for x in row))
-    return "\n".join(lines) + "\n"
-
-
-def read_prediction(path: str | Path) -> dict[str, Any]:
-    """A prediction file (.json, .npz or .csv) -> the dict ``Predictor.predict`` returns (arrays as
-    float64 numpy arrays, ``topple_probability`` None where the model has no topple head)."""
-    path = Path(path)
-    ext = path.suffix.lower()
-    if ext == ".json":
-        raw = json.loads(path.read_text())
-        flat = _flat(raw)
-    elif ext == ".npz":
-        with np.load(path) as data:
-            flat = {k: data[k] for k in data.files}
-        for key, value in list(flat.items()):
-            if value.ndim == 0:
-                flat[key] = value.item()
-    elif ext == ".csv":
-        flat = _read_csv(path)
-    else:
-        raise PredictionError(f"{path}: unsupported extension '{ext}'; use one of {', '.join(OUTPUT_EXTENSIONS)}")
-    out = {}
-    for key, value in flat.items():
-        base = key.split("simulated_", 1)[-1]
-        if base == "topple_probability":
-            arr = None if value is None else np.asarray(value, dtype=np.float64)
-            out[key] = None if arr is None or np.isnan(arr).all() else arr
-        elif base in STEP_KEYS or base == "com_mesh":
-            out[key] = np.asarray(value, dtype=np.float64)
-        elif base == "toppled":
-            out[key] = bool(value)
-        elif base in ("rate_hz", "mesh_scale"):
-            out[key] = float(value)
-        else:
-            out[key] = str(value)
-    return _nest(out)
-
-
-def _read_csv(path: Path) -> dict[str, Any]:
-    flat: dict[str, Any] = {}
-    rows: list[list[str]] = []
-    header: list[str] | None = None
-    for line in path.read_text().splitlines():
-        if line.startswith("#"):
-            match = _CSV_SCALAR.match(line)
-            if match:
-                flat[match.group(1)] = json.loads(match.group(2))
-        elif header is None:
-            header = line.split(",")
-        elif line:
-            rows.append(line.split(","))
-    assert header is not None
-    table = np.array([[float(x) if x else np.nan for x in row] for row in rows], dtype=np.float64).reshape(len(rows), len(header))
-    index = {name: i for i, name in enumerate(header)}
-    for prefix in ("", "simulated_"):
-        for key in STEP_KEYS:
-            cols = _csv_columns(prefix + key)
-            if all(c in index for c in cols):
-                arr = table[:, [index[c] for c in cols]]
-                flat[prefix + key] = arr[:, 0] if len(cols) == 1 else arr
-    return flat
 
 
 def summary(result: dict[str, Any]) -> str:

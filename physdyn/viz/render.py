@@ -34,7 +34,7 @@ def ffmpeg_available() -> bool:
 def check_animation_path(path: str | Path, overwrite: bool = False) -> Path:
     """Refuse an unsupported extension, an MP4 without ffmpeg, or an existing file, before any work.
     An .html path is a viewer page (``physdyn.viz.viewer``)."""
-    from physdyn.predict.predictor import check_output_path
+    from physdyn.predict.prediction_files import check_output_path
 
     path = check_output_path(path, overwrite, RENDER_EXTENSIONS, what="animation")
     if path.suffix.lower() == ".mp4" and not ffmpeg_available():

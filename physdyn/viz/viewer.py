@@ -139,7 +139,7 @@ def scene_from_prediction(result: dict[str, Any], mesh: Any, title: str | None =
 
 
 def check_viewer_path(path: str | Path, overwrite: bool = False) -> Path:
-    from physdyn.predict.predictor import check_output_path
+    from physdyn.predict.prediction_files import check_output_path
 
     return check_output_path(path, overwrite, VIEWER_EXTENSIONS, what="viewer page")
 

@@ -67,7 +67,7 @@ def test_contact_noise_statistic_tells_a_coarse_physics_step_from_the_convention
     # The same pushes simulated at PyBullet's usual 1/240 s chatter: the statistic must see it, and
     # `data info` must call that store noisy and the conventions' 1/960 s one faithful.
     from physdyn.data.info import FAITHFUL_CHATTER, tilt_chatter
-    from physdyn.sim.generate import generate_dataset
+    from physdyn.data.simulated_store import generate_dataset
     from tests.conftest import tiny_data_config
 
     coarse = tmp_path / "coarse.zarr"

@@ -10,11 +10,11 @@ import trimesh
 from PIL import Image
 
 import physdyn
-from physdyn.errors import PhysdynError
-from physdyn.predict.predictor import (PredictionError, PredictionWarning, Predictor, load_predictor,
-                                  read_prediction, write_prediction)
+from physdyn.errors import PhysdynError, PredictionError, PredictionWarning
 from physdyn.geometry.rotations import quat_to_matrix
 from physdyn.models.training import fit, load_experiment_config
+from physdyn.predict.prediction_files import read_prediction, write_prediction
+from physdyn.predict.predictor import Predictor, load_predictor
 from tests.conftest import run_cli
 from tests.models.conftest import QUICKSTART, shrunk_overrides
 

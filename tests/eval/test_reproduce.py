@@ -10,7 +10,7 @@ import time
 import pytest
 import torch
 
-from physdyn.experiments import reproduce as R
+from physdyn.experiments import results_page, runner, suite
 from tests.conftest import run_cli
 
 torch.set_num_threads(1)
@@ -28,20 +28,20 @@ def tiny_suite(tmp_path_factory):
     root = tmp_path_factory.mktemp("reproduce")
     log: list[str] = []
     started = time.time()
-    outcomes = R.run_suite("tiny", root / "out", results=root / "results.md", command="pytest tiny suite", log=log.append)
+    outcomes = runner.run_suite("tiny", root / "out", results=root / "results.md", command="pytest tiny suite", log=log.append)
     return root, outcomes, log, time.time() - started
 
 
 @pytest.mark.slow  # minutes-scale; CI runs it after the default suite
 def test_the_tiny_suite_runs_end_to_end_and_the_page_has_every_table(tiny_suite):
     root, outcomes, log, _ = tiny_suite
-    assert {o.name for o in outcomes} == {r.name for r in R.build_suite()}
+    assert {o.name for o in outcomes} == {r.name for r in suite.build_suite()}
     assert all(o.status == "done" for o in outcomes)
     page = (root / "results.md").read_text()
     for heading in SECTIONS:
         assert heading in page, heading
     assert "| not run" not in page
-    for category in R.CATEGORIES:  # per category, with the baselines beside the models
+    for category in suite.CATEGORIES:  # per category, with the baselines beside the models
         for label in ("Single", "Combined", "Leave-out", "stay put (baseline)", "Coulomb sliding (baseline, true μ)"):
             assert f"| {category} | {label} |" in page
     # Table 1 with the supplement's numbers beside ours
@@ -71,12 +71,12 @@ def test_the_tiny_suite_runs_end_to_end_and_the_page_has_every_table(tiny_suite)
 
 def test_error_curves_stop_where_too_few_sequences_remain():
     curve = lambda count: {"position_m": [0.0] * len(count), "count": count}  # noqa: E731
-    assert R.CURVE_MIN_SEQUENCES == 10
-    assert R.plotted_steps(curve([40, 40, 25, 10, 9, 3, 1])) == 4  # the steps with at least 10 sequences
-    assert R.plotted_steps(curve([12, 12, 12])) == 3
-    assert R.plotted_steps(curve([3, 3, 2, 1])) == 2  # a small set: plotted while all of it moves
-    assert R.plotted_steps(curve([])) == 0
-    assert R.plotted_steps(curve([800, 600, 400, 200, 150])) == 4  # and at least a quarter of a large set (200)
+    assert results_page.CURVE_MIN_SEQUENCES == 10
+    assert results_page.plotted_steps(curve([40, 40, 25, 10, 9, 3, 1])) == 4  # the steps with at least 10 sequences
+    assert results_page.plotted_steps(curve([12, 12, 12])) == 3
+    assert results_page.plotted_steps(curve([3, 3, 2, 1])) == 2  # a small set: plotted while all of it moves
+    assert results_page.plotted_steps(curve([])) == 0
+    assert results_page.plotted_steps(curve([800, 600, 400, 200, 150])) == 4  # and at least a quarter of a large set (200)
 
 
 @pytest.mark.slow  # minutes-scale; CI runs it after the default suite
@@ -84,13 +84,13 @@ def test_a_second_invocation_skips_every_finished_run(tiny_suite):
     root, _, _, first_seconds = tiny_suite
     log: list[str] = []
     started = time.time()
-    outcomes = R.run_suite("tiny", root / "out", log=log.append)
+    outcomes = runner.run_suite("tiny", root / "out", log=log.append)
     assert all(o.status == "skipped" for o in outcomes)
-    assert sum("skip " in line for line in log) == len(R.build_suite())
+    assert sum("skip " in line for line in log) == len(suite.build_suite())
     assert time.time() - started < max(5.0, first_seconds / 3)
     # the page credits the invocation that made the runs, not the one that only skipped them
-    page = R.write_results(root / "out", root / "again.md").read_text()
-    assert "`pytest tiny suite` on 20" in page and f"({len(R.build_suite())} runs)" in page
+    page = results_page.write_results(root / "out", root / "again.md").read_text()
+    assert "`pytest tiny suite` on 20" in page and f"({len(suite.build_suite())} runs)" in page
     assert "and 1 later invocation(s) that found every selected run finished" in page
 
 
@@ -104,7 +104,7 @@ def test_an_interrupted_run_is_resumed_and_only_it_is_redone(tiny_suite):
     shutil.rmtree(out / "eval/single-mugs")
     before = (out / "eval/speakers-lstm/metrics.json").stat().st_mtime
     log: list[str] = []
-    outcomes = {o.name: o.status for o in R.run_suite("tiny", out, log=log.append)}
+    outcomes = {o.name: o.status for o in runner.run_suite("tiny", out, log=log.append)}
     assert outcomes.pop("train/speakers-mlp") == "resumed"
     assert outcomes.pop("eval/single-mugs") == "done"
     assert set(outcomes.values()) == {"skipped"}
@@ -113,33 +113,33 @@ def test_an_interrupted_run_is_resumed_and_only_it_is_redone(tiny_suite):
 
 
 def test_an_incomplete_store_is_resumed(tmp_path):
+    from physdyn.data.simulated_store import generate_dataset
     from physdyn.data.store import load_store
-    from physdyn.sim.generate import generate_dataset
 
-    scale, path = R.load_scale("tiny")
+    scale, path = suite.load_scale("tiny")
     out = tmp_path / "out"
-    store = R.store_path(out, "speakers")
+    store = suite.store_path(out, "speakers")
     scale.data["speakers"] = list(scale.data["speakers"]) + ["shapes_per_block=2"]  # two blocks: stop after one
-    cfg = R.data_config(scale, "speakers")
-    import physdyn.sim.generate as G
+    cfg = suite.data_config(scale, "speakers")
+    import physdyn.data.simulated_store as G
 
-    original = G._execute
+    original = G.simulate_blocks
 
     def first_block_only(*args, **kwargs):
         for item in original(*args, **kwargs):
             yield item
             raise KeyboardInterrupt
 
-    G._execute = first_block_only
+    G.simulate_blocks = first_block_only
     try:
         with pytest.raises(KeyboardInterrupt):
             generate_dataset(cfg, str(store), workers=1, progress=False)
     finally:
-        G._execute = original
-    assert not R._store_complete(store)
-    runner = R.SuiteRunner(scale, path, out, log=lambda _: None)
-    outcomes = runner.run([r for r in R.build_suite() if r.name == "data/speakers"])
-    assert outcomes[0].status == "resumed" and R._store_complete(store)
+        G.simulate_blocks = original
+    assert not runner._store_complete(store)
+    suite_runner = runner.SuiteRunner(scale, path, out, log=lambda _: None)
+    outcomes = suite_runner.run([r for r in suite.build_suite() if r.name == "data/speakers"])
+    assert outcomes[0].status == "resumed" and runner._store_complete(store)
     assert load_store(str(store)).num_shapes == 4
 
 
@@ -162,7 +162,7 @@ def test_cli_errors_are_one_line(tmp_path):
     proc = run_cli("reproduce", "--scale", "tiny", "--out", str(tmp_path / "o"), "--only", "nonsense", "--no-results")
     assert proc.returncode == 2 and "unknown experiment 'nonsense'" in proc.stderr and "Traceback" not in proc.stderr
     (tmp_path / "o").mkdir(exist_ok=True)
-    (tmp_path / "o" / R.MANIFEST).write_text(json.dumps({"scale": "cpu", "invocations": []}))
+    (tmp_path / "o" / suite.MANIFEST).write_text(json.dumps({"scale": "cpu", "invocations": []}))
     proc = run_cli("reproduce", "--scale", "tiny", "--out", str(tmp_path / "o"), "--no-results")
     assert proc.returncode == 2 and "scale 'cpu'" in proc.stderr
     proc = run_cli("reproduce", "--report-only", "--out", str(tmp_path / "empty"), "--results", str(tmp_path / "r.md"))
@@ -170,15 +170,15 @@ def test_cli_errors_are_one_line(tmp_path):
 
 
 def test_selecting_experiments_pulls_in_what_they_need():
-    runs = R.select_runs(R.build_suite(), ["friction"])
+    runs = suite.select_runs(suite.build_suite(), ["friction"])
     names = [r.name for r in runs]
     assert names.index("data/friction") < names.index("train/friction") < names.index("eval/friction-warm5")
     assert "train/speakers-lstm" in names and "data/combined" not in names
-    for scale in R.SCALES:  # every scale's presets resolve to valid configs
-        cfg, path = R.load_scale(scale)
-        for spec in R.build_suite():
+    for scale in suite.SCALES:  # every scale's presets resolve to valid configs
+        cfg, path = suite.load_scale(scale)
+        for spec in suite.build_suite():
             if spec.kind == "train":
-                R.experiment_config(cfg, path, spec, "runs/x")
+                suite.experiment_config(cfg, path, spec, "runs/x")
             elif spec.kind == "data":
-                R.data_config(cfg, spec.short)
-        R.pretrain_config(cfg, path, R.RunSpec("pretrain/encoder", "pretrain"), "runs/x")
+                suite.data_config(cfg, spec.short)
+        suite.pretrain_config(cfg, path, suite.RunSpec("pretrain/encoder", "pretrain"), "runs/x")

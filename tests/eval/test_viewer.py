@@ -11,7 +11,8 @@ import trimesh
 
 from physdyn.data.store import load_store
 from physdyn.cli import main
-from physdyn.predict.predictor import load_predictor, read_prediction, write_prediction
+from physdyn.predict.prediction_files import read_prediction, write_prediction
+from physdyn.predict.predictor import load_predictor
 from physdyn.viz.store_scenes import pick_sequences, shape_mesh
 from physdyn.viz.viewer import MAX_FACES, ViewerError, read_viewer_data, scene_from_prediction, write_viewer
 from tests.conftest import run_cli

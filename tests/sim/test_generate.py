@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from physdyn.data.simulated_store import generate_dataset
 from physdyn.data.store import PARTS, load_store
 from physdyn.errors import ConfigError, StoreError
 from physdyn.geometry.rotations import tilt_angle
-from physdyn.sim.generate import generate_dataset
 from tests.conftest import REPO, TINY_OVERRIDES, run_cli, tiny_data_config
 
 ARRAYS = ["points", "com_mesh", "mass", "inertia_diag", "category", "source", "shape_id", "start", "split",
@@ -129,13 +129,14 @@ def test_resume_survives_a_part_with_truncated_metadata(tmp_path):
     generate_dataset(cfg, str(out), progress=False)
     reference = load_store(out)
     # Rebuild the interrupted state: incomplete, one part fully written, one with truncated metadata.
+    from physdyn.data.simulated_store import block_part
     from physdyn.data.store import StoreWriter
     from physdyn.sim.generate import config_hash, plan, run_block
 
     blocks, _ = plan(cfg)
     writer = StoreWriter.create(str(out), {"config_hash": config_hash(cfg), "rate_hz": cfg.rate_hz}, overwrite=True)
     for b in (0, 1):
-        writer.write_block(*run_block(cfg, b, blocks[b]))
+        writer.write_block(b, *block_part(run_block(cfg, b, blocks[b])))
     meta = out / PARTS / "000001" / "zarr.json"
     meta.write_text(meta.read_text()[:25])
     assert writer.done_blocks(len(blocks)) == {0}

@@ -1,0 +1,190 @@
+"""Running the reproduce suite: each selected run in dependency order under ``OUT``, finished work
+skipped and interrupted work resumed, every invocation recorded in ``OUT/reproduce.json``.
+
+Finished work is skipped (finished.json, metrics.json, a complete store); a training with last.ckpt is
+resumed, an incomplete store continued. The folder layout is ``suite.py``'s.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+from physdyn.config import to_dict
+from physdyn.errors import PhysdynError
+from physdyn.experiments.results_page import write_results
+from physdyn.experiments.suite import (MANIFEST, RUN_FILE, RunSpec, ScaleConfig, build_suite, data_config,
+                                       experiment_config, load_scale, pretrain_config, run_dir, select_runs,
+                                       store_path, utc_now)
+
+@dataclass
+class RunOutcome:
+    name: str
+    status: str  # skipped | done | resumed
+    wall_s: float
+
+
+def is_finished(out: Path, spec: RunSpec) -> bool:
+    d = run_dir(out, spec)
+    if spec.kind == "data":
+        return (d / RUN_FILE).is_file() and _store_complete(store_path(out, spec.short))
+    if spec.kind in ("train", "pretrain"):
+        return (d / "finished.json").is_file()
+    return (d / "metrics.json").is_file()
+
+
+def _store_complete(path: Path) -> bool:
+    import zarr
+
+    try:
+        return bool(zarr.open_group(str(path), mode="r").attrs.get("complete"))
+    except Exception:
+        return False
+
+
+def hardware() -> dict[str, Any]:
+    import torch
+
+    gpu = torch.cuda.get_device_name(0) if torch.cuda.is_available() else None
+    return {"platform": platform.platform(), "python": platform.python_version(), "cpu_count": os.cpu_count(),
+            "torch": torch.__version__, "gpu": gpu}
+
+
+def _manifest(out: Path, scale: ScaleConfig, scale_file: Path, command: str, only: Sequence[str] | None) -> None:
+    path = Path(out) / MANIFEST
+    data = json.loads(path.read_text()) if path.is_file() else {"scale": scale.name, "scale_file": str(scale_file), "invocations": []}
+    if data["scale"] != scale.name:
+        raise PhysdynError(f"{out} holds runs of scale '{data['scale']}', not '{scale.name}'; choose another --out "
+                           f"or pass --scale {data['scale']}")
+    data["invocations"].append({"command": command, "date": utc_now(), "only": list(only or []), "hardware": hardware()})
+    Path(out).mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=1))
+
+
+def _record_runs_done(out: Path, done: int) -> None:
+    """Note on the latest invocation how many runs it made: one that only skipped finished runs made none
+    of the page's numbers, so the page neither credits it nor takes its hardware."""
+    path = Path(out) / MANIFEST
+    data = json.loads(path.read_text())
+    data["invocations"][-1]["runs_done"] = done
+    path.write_text(json.dumps(data, indent=1))
+
+
+class SuiteRunner:
+    """Executes RunSpecs under ``out``; stores are loaded once and shared by the runs that read them."""
+
+    def __init__(self, scale: ScaleConfig, scale_file: Path, out: str | Path, workers: int | None = None,
+                 log: Callable[[str], None] = print):
+        self.scale, self.scale_file, self.out = scale, scale_file, Path(out)
+        self.workers = workers if workers is not None else scale.workers
+        self.log = log
+        self._stores: dict[str, Any] = {}
+
+    def store(self, name: str):
+        from physdyn.data.store import load_store
+
+        if name not in self._stores:
+            self._stores[name] = load_store(str(store_path(self.out, name)))
+        return self._stores[name]
+
+    def run(self, specs: Sequence[RunSpec]) -> list[RunOutcome]:
+        outcomes = []
+        for i, spec in enumerate(specs, 1):
+            if is_finished(self.out, spec):
+                self.log(f"[{i}/{len(specs)}] skip {spec.name} (finished)")
+                outcomes.append(RunOutcome(spec.name, "skipped", 0.0))
+                continue
+            self.log(f"[{i}/{len(specs)}] run {spec.name}")
+            started = time.time()
+            resumed = getattr(self, f"_run_{spec.kind}")(spec)
+            wall = time.time() - started
+            d = run_dir(self.out, spec)
+            d.mkdir(parents=True, exist_ok=True)
+            (d / RUN_FILE).write_text(json.dumps({"name": spec.name, "kind": spec.kind, "scale": self.scale.name,
+                                                  "wall_s": wall, "resumed": resumed, "finished": utc_now()}, indent=1))
+            status = "resumed" if resumed else "done"
+            self.log(f"[{i}/{len(specs)}] {status} {spec.name} in {wall:.1f} s")
+            outcomes.append(RunOutcome(spec.name, status, wall))
+        return outcomes
+
+    def _run_data(self, spec: RunSpec) -> bool:
+        from physdyn.data.store import store_exists
+        from physdyn.data.simulated_store import generate_dataset
+
+        cfg = data_config(self.scale, spec.short)
+        path = store_path(self.out, spec.short)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        (path.parent / "config.yaml").write_text(_yaml(to_dict(cfg)))
+        if _store_complete(path):
+            return False
+        resume = store_exists(str(path))
+        generate_dataset(cfg, str(path), workers=self.workers, resume=resume, progress=False)
+        self._stores.pop(spec.short, None)
+        return resume
+
+    def _run_pretrain(self, spec: RunSpec) -> bool:
+        from physdyn.models.pretrain import pretrain
+
+        cfg = pretrain_config(self.scale, self.scale_file, spec, self.out)
+        d = run_dir(self.out, spec)
+        started_before = d.exists() and any(d.iterdir())
+        pretrain(cfg, overwrite=True)  # no mid-run checkpoint to continue from: an interrupted one starts over
+        return started_before
+
+    def _run_train(self, spec: RunSpec) -> bool:
+        from physdyn.models.training import fit
+
+        cfg = experiment_config(self.scale, self.scale_file, spec, self.out)
+        d = run_dir(self.out, spec)
+        resume = (d / "last.ckpt").is_file()
+        fit(cfg, resume=resume, overwrite=not resume, store=self.store(spec.store))
+        return resume
+
+    def _run_eval(self, spec: RunSpec) -> bool:
+        from physdyn.eval.baselines import load_checkpoint
+        from physdyn.eval.evaluate import compare
+        from physdyn.eval.report import write_report
+
+        model = load_checkpoint(run_dir(self.out, RunSpec(f"train/{spec.model}", "train")) / "best.ckpt")
+        model.eval()
+        result = compare(model, self.store(spec.store), spec.baselines, split="test", warm_start=spec.warm_start,
+                         categories=list(spec.categories) or None, batch_size=self.scale.eval_batch_size)
+        result["spec"] = {"model": spec.model, "store": spec.store, "categories": list(spec.categories),
+                          "warm_start": spec.warm_start, "baselines": list(spec.baselines)}
+        d = run_dir(self.out, spec)
+        tmp = d.with_name(d.name + ".partial")
+        shutil.rmtree(tmp, ignore_errors=True)
+        write_report(result, tmp, overwrite=True)
+        if d.exists():
+            shutil.rmtree(d)
+        tmp.rename(d)  # metrics.json appears with the whole report or not at all
+        return False
+
+
+def _yaml(data: dict) -> str:
+    from omegaconf import OmegaConf
+
+    return OmegaConf.to_yaml(OmegaConf.create(data))
+
+
+def run_suite(scale: str | Path, out: str | Path, only: Sequence[str] | None = None, workers: int | None = None,
+              results: str | Path | None = None, command: str = "", log: Callable[[str], None] = print) -> list[RunOutcome]:
+    """Run (or skip, or resume) the selected experiments at ``scale`` under ``out``; then write the results
+    page to ``results`` when given. Returns one outcome per run."""
+    cfg, path = load_scale(scale)
+    specs = select_runs(build_suite(), only)
+    _manifest(Path(out), cfg, path, command or f"run_suite({scale!r}, {str(out)!r}, only={list(only or [])})", only)
+    outcomes = SuiteRunner(cfg, path, out, workers, log).run(specs)
+    done = sum(o.status != "skipped" for o in outcomes)
+    _record_runs_done(Path(out), done)
+    log(f"reproduce: {done} run(s) done, {len(outcomes) - done} skipped (finished earlier), in {out}")
+    if results is not None:
+        write_results(out, results, command=command)
+        log(f"reproduce: wrote {results}")
+    return outcomes

@@ -1,0 +1,78 @@
+"""A user's mesh made into a rigid body for prediction: the cleaned mesh (mesh frame, metres), its mass
+properties and collision hull (``RigidBodySpec``), the point cloud the model sees, and where it rests."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from physdyn.errors import PredictionError
+
+POINTS_SEED = 0  # fixed: the same mesh always gets the same cloud, so predictions are reproducible
+IN_MEMORY = "<in-memory>"
+
+
+@dataclass
+class PreparedBody:
+    """A mesh made into a rigid body: cleaned mesh (mesh frame, metres), its ``RigidBodySpec`` and where it
+    came from. ``notes``: one-line warnings (e.g. the convex hull was used for the mass properties)."""
+
+    mesh: Any
+    spec: Any
+    name: str
+    notes: list[str] = field(default_factory=list)
+    scale: float = 1.0  # applied to the file's coordinates to get metres
+    _points: dict[int, np.ndarray] = field(default_factory=dict, repr=False)
+
+    def points_body(self, num_points: int) -> np.ndarray:
+        """(num_points, 3) float32 surface points in the body frame (mesh axes, origin at the com)."""
+        if num_points not in self._points:
+            from physdyn.config import DataConfig
+            from physdyn.geometry.sampling import sample_surface_points
+
+            pts = sample_surface_points(self.mesh, num_points, DataConfig().oversample, seed=POINTS_SEED)
+            self._points[num_points] = (pts - self.spec.com_mesh).astype(np.float32)
+        return self._points[num_points]
+
+
+def prepare_body(mesh: Any, scale: float = 1.0, density: float | None = None) -> PreparedBody:
+    """A mesh file path or ``trimesh.Trimesh`` -> ``PreparedBody``. Exact mass properties of the solid, or
+    of its convex hull (with a note) when the mesh is not a closed volume. Raises ``ShapeError``."""
+    import trimesh
+
+    from physdyn.config import MassConfig
+    from physdyn.errors import ShapeError
+    from physdyn.geometry.mass import solid_mass_properties
+    from physdyn.geometry.mesh_io import check_mesh, load_mesh, prepare_mesh
+    from physdyn.sim.body import RigidBodySpec
+
+    if isinstance(mesh, PreparedBody):
+        return mesh
+    if isinstance(mesh, trimesh.Trimesh):
+        if not np.isfinite(scale) or scale <= 0:
+            raise ShapeError(f"mesh {IN_MEMORY}: scale must be a positive number, got {scale}")
+        name = IN_MEMORY
+        raw = mesh.copy()
+        if scale != 1.0:
+            raw.apply_scale(scale)
+        check_mesh(raw, name)
+    elif isinstance(mesh, (str, os.PathLike)):
+        name = str(mesh)
+        raw = load_mesh(mesh, scale)
+    else:
+        raise PredictionError(f"mesh must be a file path or a trimesh.Trimesh, got {type(mesh).__name__}")
+    prepared = prepare_mesh(raw, name)
+    density = MassConfig().density if density is None else float(density)
+    props = solid_mass_properties(prepared.mesh, prepared.watertight, density, f"mesh {name}")
+    spec = RigidBodySpec.from_mesh(prepared.mesh, props)
+    return PreparedBody(mesh=prepared.mesh, spec=spec, name=name, notes=list(prepared.warnings), scale=float(scale))
+
+
+def initial_pose(spec: Any, orientation_xyzw: np.ndarray) -> np.ndarray:
+    """The centre of mass (3,) of the object at rest in this orientation: lowest point on z = 0, x = y = 0."""
+    from physdyn.sim.trajectory import resting_com_position
+
+    return resting_com_position(spec, orientation_xyzw)
