@@ -390,6 +390,10 @@ class ModelConfig:
     # Feed the object's current orientation relative to step 0 (6D rotation representation) at every step;
     # the paper feeds velocities only, so the predictor is never told how the object has turned.
     orientation_input: bool = False
+    # The contact prior's spin inertia (I_zz / m): "points" estimates it from the cloud (0.8 x the points'
+    # mean squared radius); "body" takes the body's mass properties where the caller knows them (a store's
+    # shapes, a mesh given to `physdyn predict`) and the estimate elsewhere. docs/ablations.md.
+    contact_inertia: str = "points"
 
 
 @dataclass

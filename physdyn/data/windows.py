@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from physdyn.data.store import StoreData
+from physdyn.geometry.mass import vertical_inertia
 from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_matrix, world_delta_rotvec
 
 # The per-step changes a model predicts, in the order of its 12 outputs [dv, dw, dp, dtheta].
@@ -26,7 +27,7 @@ DELTA_KEYS = ("delta_linear_velocity", "delta_angular_velocity", "delta_position
 WINDOW_KEYS = (
     "points", "linear_velocity", "angular_velocity", "delta_linear_velocity", "delta_angular_velocity",
     "delta_position", "delta_rotation", "topple_label", "valid", "com_position0", "orientation0_xyzw",
-    "sim", "start", "relative_orientation_xyzw",
+    "sim", "start", "relative_orientation_xyzw", "spin_inertia",
 )
 
 
@@ -75,6 +76,13 @@ def world_oriented_points(points_body: np.ndarray, orientation_xyzw: np.ndarray)
     """points_body: (..., N, 3) body frame; orientation_xyzw: (..., 4) of the mesh frame -> (..., N, 3) R @ p."""
     R = quat_to_matrix(orientation_xyzw)
     return np.einsum("...ij,...nj->...ni", R, points_body)
+
+
+def store_spin_inertia(store: StoreData, sims: np.ndarray, orientation_xyzw: np.ndarray) -> np.ndarray:
+    """(B,) I_zz / m about the world vertical of each sim's shape in the given (B, 4) orientations."""
+    shapes = store.shape_id[np.asarray(sims, dtype=np.int64)]
+    axes = quat_to_matrix(store.inertia_orientation_xyzw[shapes])
+    return vertical_inertia(store.inertia_diag[shapes], axes, store.mass[shapes], orientation_xyzw)
 
 
 def subsample_indices(num_available: int, num_points: int | None, rng: np.random.Generator, batch: int) -> np.ndarray | None:
@@ -139,4 +147,5 @@ class WindowSource:
             "sim": sims,
             "start": starts,
             "relative_orientation_xyzw": relative_rotation(s.orientation_xyzw[first], s.orientation_xyzw[frames]).astype(f32),
+            "spin_inertia": store_spin_inertia(s, sims, s.orientation_xyzw[first]).astype(f32),
         }

@@ -15,7 +15,7 @@ import numpy as np
 
 from physdyn.data import SPLITS
 from physdyn.data.store import StoreData, load_store
-from physdyn.data.windows import frame_targets, subsample_indices
+from physdyn.data.windows import frame_targets, store_spin_inertia, subsample_indices
 from physdyn.errors import PhysdynError
 from physdyn.eval import metrics as M
 from physdyn.eval.baselines import Baseline, predictor_name, resolve_predictor
@@ -119,7 +119,8 @@ def predict_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, truth: 
         topple_points = None
         if classifier is not None:  # its own cloud size, drawn from a stream of its own: the model's draws stay as they were
             topple_points = _model_points(store, sims[sl], classifier.num_points, np.random.default_rng([seed, sl.start]))
-        parts.append(rollout(predictor, points, q0, p0, v0, w0, steps, warm, topple_points_body=topple_points))
+        parts.append(rollout(predictor, points, q0, p0, v0, w0, steps, warm, topple_points_body=topple_points,
+                             spin_inertia=store_spin_inertia(store, sims[sl], q0)))
     return _concat(parts)
 
 
@@ -136,9 +137,9 @@ def predict_single_steps(predictor: Any, store: StoreData, sims: np.ndarray, tru
     parts = []
     for sl in _chunks(B, batch_size):
         points = _model_points(store, sims[sl], predictor.num_points, rng)
-        parts.append(teacher_forced(predictor, points, truth["orientation_xyzw"][sl, 0],
-                                    truth["linear_velocity"][sl, :S], truth["angular_velocity"][sl, :S],
-                                    truth["orientation_xyzw"][sl, :S]))
+        q0 = truth["orientation_xyzw"][sl, 0]
+        parts.append(teacher_forced(predictor, points, q0, truth["linear_velocity"][sl, :S], truth["angular_velocity"][sl, :S],
+                                    truth["orientation_xyzw"][sl, :S], spin_inertia=store_spin_inertia(store, sims[sl], q0)))
     return {k: np.concatenate([p[k] for p in parts], axis=0) for k in DELTA_KEYS}
 
 

@@ -128,6 +128,7 @@ def rollout(
     warm_start_velocities: tuple[np.ndarray, np.ndarray] | None = None,
     stepwise: bool = False,
     topple_points_body: np.ndarray | None = None,
+    spin_inertia: np.ndarray | None = None,
 ) -> RolloutResult:
     """Roll a predictor out for ``steps`` transitions from the state at step 0, B sequences at once.
 
@@ -142,6 +143,8 @@ def rollout(
     the reference loop through ``step`` (the same numbers to float32 precision; tests compare them).
     A model with a ``topple_classifier`` (``physdyn fit-topple``) reports its per-step probabilities
     instead of the head's, from ``topple_points_body`` (B, N', 3) (default: ``points_body``).
+    spin_inertia: optional (B,) I_zz / m of each body about the world vertical at step 0, for models whose
+    contact prior takes the body's (``model.contact_inertia=body``; ``physdyn.geometry.mass.vertical_inertia``).
     """
     if steps < 0:
         raise ValueError(f"steps must be >= 0, got {steps}")
@@ -151,7 +154,8 @@ def rollout(
     K = warm_v.shape[1]
     points = world_oriented_points(_numpy(points_body), q0).astype(np.float32)
     if hasattr(model, "rollout_changes") and not stepwise:
-        out = model.rollout_changes(points, lin_vel0, ang_vel0, steps, warm_v if K else None, warm_w if K else None)
+        kwargs = {} if spin_inertia is None else {"spin_inertia": spin_inertia}
+        out = model.rollout_changes(points, lin_vel0, ang_vel0, steps, warm_v if K else None, warm_w if K else None, **kwargs)
         changes, fed = _numpy(out["changes"]), _numpy(out["fed"])
         deltas = {k: changes[..., 3 * i : 3 * i + 3] for i, k in enumerate(DELTA_KEYS)}
         fed_v, fed_w = fed[..., :3], fed[..., 3:]
@@ -160,7 +164,7 @@ def rollout(
         v = _numpy(lin_vel0).reshape(B, 3) if not steps else fed_v[:, -1] + deltas["delta_linear_velocity"][:, -1]
         w = _numpy(ang_vel0).reshape(B, 3) if not steps else fed_w[:, -1] + deltas["delta_angular_velocity"][:, -1]
     else:
-        deltas, fed_v, fed_w, topple, v, w = _stepwise(model, points, lin_vel0, ang_vel0, steps, warm_v, warm_w)
+        deltas, fed_v, fed_w, topple, v, w = _stepwise(model, points, lin_vel0, ang_vel0, steps, warm_v, warm_w, spin_inertia)
     states = integrate(com_position0, q0, lin_vel0, ang_vel0, deltas)
     if K and steps:
         # the velocity track restarts from each observation: report what was fed, then the last update
@@ -178,11 +182,11 @@ def rollout(
 
 
 def _stepwise(model: Any, points: np.ndarray, lin_vel0: Any, ang_vel0: Any, steps: int, warm_v: np.ndarray,
-              warm_w: np.ndarray):
+              warm_w: np.ndarray, spin_inertia: np.ndarray | None = None):
     """The reference roll-out loop, one ``model.step`` per step with numpy state between steps: the path of
     any object with ``encode_points`` and ``step``, and the check on ``rollout_changes``."""
     B, K = points.shape[0], warm_v.shape[1]
-    feature = model.encode_points(points)
+    feature = model.encode_points(points) if spin_inertia is None else model.encode_points(points, spin_inertia)
     v, w = _numpy(lin_vel0).reshape(B, 3).copy(), _numpy(ang_vel0).reshape(B, 3).copy()
     fed_v, fed_w = np.empty((B, steps, 3)), np.empty((B, steps, 3))
     deltas = {k: np.empty((B, steps, 3)) for k in DELTA_KEYS}
@@ -211,13 +215,13 @@ def _stepwise(model: Any, points: np.ndarray, lin_vel0: Any, ang_vel0: Any, step
 
 def teacher_forced(
     model: Any, points_body: np.ndarray, orientation0_xyzw: np.ndarray, linear_velocity: np.ndarray, angular_velocity: np.ndarray,
-    orientation_xyzw: np.ndarray | None = None,
+    orientation_xyzw: np.ndarray | None = None, spin_inertia: np.ndarray | None = None,
 ) -> dict[str, np.ndarray | None]:
     """Single-step (teacher-forced) predictions: the TRUE velocities fed at every step.
 
     points_body (B, N, 3) body frame; orientation0_xyzw (B, 4) at step 0; linear_velocity,
     angular_velocity (B, S, 3) true, world frame; orientation_xyzw (B, S, 4) the true orientations, needed by
-    models fed their orientation since step 0. Returns ``delta_*`` (B, S, 3) float64 and
+    models fed their orientation since step 0; spin_inertia (B,) as for ``rollout``. Returns ``delta_*`` (B, S, 3) float64 and
     ``topple_probability`` (B, S) (the predicted label of step t+1) or None.
     """
     q0 = _numpy(orientation0_xyzw)
@@ -228,7 +232,8 @@ def teacher_forced(
             raise ValueError("this model is fed its orientation since step 0: pass the true orientation_xyzw")
         turn = relative_rotation(q0, _numpy(orientation_xyzw)).astype(np.float32)
     args = (points, np.asarray(linear_velocity, np.float32), np.asarray(angular_velocity, np.float32))
-    pred = model.predict_window(*args) if turn is None else model.predict_window(*args, orientation=turn)
+    kwargs = {} if spin_inertia is None else {"spin_inertia": spin_inertia}
+    pred = model.predict_window(*args, **kwargs) if turn is None else model.predict_window(*args, orientation=turn, **kwargs)
     out: dict[str, np.ndarray | None] = {k: _numpy(getattr(pred, k)) for k in DELTA_KEYS}
     out["topple_probability"] = None if pred.topple_probability is None else _numpy(pred.topple_probability)
     return out

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import trimesh
+from physdyn.geometry.rotations import quat_to_matrix
 
 
 @dataclass
@@ -111,3 +112,13 @@ def solid_mass_properties(mesh: trimesh.Trimesh, watertight: bool, density: floa
     if not np.isfinite(props.mass) or props.mass <= 0:
         raise ShapeError(f"{source}: non-positive volume; check the mesh is a closed solid")
     return props
+
+
+def vertical_inertia(inertia_diag: np.ndarray, principal_axes: np.ndarray, mass: np.ndarray,
+                     orientation_xyzw: np.ndarray) -> np.ndarray:
+    """I_zz / m about the world vertical through the centre of mass, for a body whose mesh frame has world
+    orientation ``orientation_xyzw``: inertia_diag (..., 3) principal moments (kg m^2), principal_axes
+    (..., 3, 3) as columns in mesh coordinates, mass (...) kg, orientation (..., 4) -> (...) m^2.
+    The contact prior spins a sliding body with it (``model.contact_inertia=body``)."""
+    vertical = np.einsum("...j,...jk->...k", quat_to_matrix(orientation_xyzw)[..., 2, :], principal_axes)
+    return (np.asarray(inertia_diag) * vertical ** 2).sum(-1) / np.asarray(mass)

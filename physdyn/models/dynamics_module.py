@@ -182,14 +182,28 @@ class DynamicsModel(LightningModule):
     def uses_shape_prior(self) -> bool:
         return self.config.model.prior in SHAPE_PRIORS
 
-    def encode(self, points: torch.Tensor) -> torch.Tensor:
+    def encode(self, points: torch.Tensor, spin_inertia: torch.Tensor | None = None) -> torch.Tensor:
         """points: (B, N, 3) world-oriented body frame, metres -> (B, F') shape code: the encoder's feature,
         followed, for a prior that reads the shape (``model.prior=contact``), by its footprint geometry.
-        Callers treat the code as opaque and hand it back to ``forward``/``step``."""
+        spin_inertia: (B,) the body's I_zz / m about the world vertical, used by ``model.contact_inertia=body``
+        instead of the cloud's estimate. Callers treat the code as opaque and hand it back to
+        ``forward``/``step``."""
         feature = self.encoder(points / self.point_scale)
         if self.uses_shape_prior:
-            feature = torch.cat([feature, contact_geometry(points)], dim=1)
+            feature = self.with_spin_inertia(torch.cat([feature, contact_geometry(points)], dim=1), spin_inertia)
         return feature
+
+    def with_spin_inertia(self, code: torch.Tensor, spin_inertia: Any) -> torch.Tensor:
+        """A shape code from ``encode`` with the contact prior's spin inertia replaced by the body's (B,),
+        where ``model.contact_inertia=body`` and the caller knows it; otherwise the code as it is."""
+        if spin_inertia is None or not self.uses_shape_prior or self.config.model.contact_inertia != "body":
+            return code
+        column = code.shape[1] - 2  # contact_geometry ends with I_zz / m and the height of the centre of mass
+        value = torch.as_tensor(spin_inertia, dtype=code.dtype, device=code.device).reshape(-1, 1)
+        estimate = code[:, column : column + 1]
+        # a store or mesh without usable mass properties (NaN, zero) keeps the cloud's estimate
+        value = torch.where(torch.isfinite(value) & (value > 0), value.clamp_min(1e-8), estimate)
+        return torch.cat([code[:, :column], value, code[:, column + 1 :]], dim=1)
 
     def forward(self, feature: torch.Tensor, linear_velocity: torch.Tensor, angular_velocity: torch.Tensor, state: Any = None,
                 orientation: torch.Tensor | None = None):
@@ -238,16 +252,16 @@ class DynamicsModel(LightningModule):
         )
 
     def predict_window(self, points: Any, linear_velocity: Any, angular_velocity: Any, state: Any = None,
-                       orientation: Any = None) -> DynamicsPrediction:
+                       orientation: Any = None, spin_inertia: Any = None) -> DynamicsPrediction:
         """Changes at every step given the true velocities at every step (teacher forcing).
 
         points: (B, N, 3) world-oriented body frame at the first step (see
         ``physdyn.data.windows.world_oriented_points``); velocities: (B, T, 3) SI, world frame; orientation:
-        (B, T, 4) xyzw rotation since the first step (models with ``orientation_input`` only).
-        Runs in eval mode without gradients; arrays or tensors in, tensors out.
+        (B, T, 4) xyzw rotation since the first step (models with ``orientation_input`` only); spin_inertia
+        (B,) as for ``encode``. Runs in eval mode without gradients; arrays or tensors in, tensors out.
         """
         with _inference(self):
-            feature = self.encode(self._as_tensor(points))
+            feature = self.encode(self._as_tensor(points), spin_inertia)
             q = None if orientation is None else self._as_tensor(orientation)
             changes, logit, state = self(feature, self._as_tensor(linear_velocity), self._as_tensor(angular_velocity), state, q)
             return self._prediction(changes, logit, state)
@@ -265,19 +279,20 @@ class DynamicsModel(LightningModule):
             pred = self._prediction(changes[:, 0], None if logit is None else logit[:, 0], state)
             return pred
 
-    def encode_points(self, points: Any) -> torch.Tensor:
+    def encode_points(self, points: Any, spin_inertia: Any = None) -> torch.Tensor:
         """``encode`` in eval mode without gradients, for roll-outs: (B, N, 3) -> (B, F)."""
         with _inference(self):
-            return self.encode(self._as_tensor(points))
+            return self.encode(self._as_tensor(points), spin_inertia)
 
     def rollout_changes(self, points: torch.Tensor, linear_velocity0: torch.Tensor, angular_velocity0: torch.Tensor,
                         steps: int, warm_linear: torch.Tensor | None = None,
-                        warm_angular: torch.Tensor | None = None) -> dict[str, torch.Tensor | None]:
+                        warm_angular: torch.Tensor | None = None, spin_inertia: Any = None) -> dict[str, torch.Tensor | None]:
         """A whole roll-out in torch, in eval and inference mode: one shape encoding, then ``steps`` calls of
         the network on its own velocities, with no host round-trip per step.
 
         points (B, N, 3) world-oriented body frame of step 0; linear/angular_velocity0 (B, 3) SI; warm_*
-        (B, K, 3): the true velocities of steps 1..K, fed instead of the model's own. Velocities and the
+        (B, K, 3): the true velocities of steps 1..K, fed instead of the model's own; spin_inertia (B,) as for
+        ``encode``. Velocities and the
         orientation since step 0 are carried in float64 (as ``physdyn.eval.rollout.rollout`` documents),
         fed in float32. Returns ``changes`` (B, S, 12) float64 SI [dv, dw, dp, dtheta], ``fed`` (B, S, 6) the
         velocities fed at each step, ``topple_probability`` (B, S) (the label of step t+1) or None.
@@ -287,30 +302,33 @@ class DynamicsModel(LightningModule):
             self.eval()
         try:
             with torch.inference_mode():
+                args = (points, linear_velocity0, angular_velocity0, steps, warm_linear, warm_angular, spin_inertia)
                 if len(points) == 1 and SingleRollout.supports(self):
-                    return self._single_rollout(points, linear_velocity0, angular_velocity0, steps, warm_linear, warm_angular)
-                return self._rollout_changes(points, linear_velocity0, angular_velocity0, steps, warm_linear, warm_angular)
+                    return self._single_rollout(*args)
+                return self._rollout_changes(*args)
         finally:
             if was_training:
                 self.train()
 
-    def _single_rollout(self, points, linear_velocity0, angular_velocity0, steps, warm_linear, warm_angular):
+    def _single_rollout(self, points, linear_velocity0, angular_velocity0, steps, warm_linear, warm_angular,
+                        spin_inertia=None):
         """One object: the same roll-out on numpy and Python numbers (``physdyn.models.single_rollout``)."""
-        feature = self.encode(torch.as_tensor(points, dtype=torch.float32, device=self.device))
+        feature = self.encode(torch.as_tensor(points, dtype=torch.float32, device=self.device), spin_inertia)
         as64 = lambda x: None if x is None else np.asarray(torch.as_tensor(x).cpu(), np.float64)  # noqa: E731
         warm_v, warm_w = as64(warm_linear), as64(warm_angular)
         out = SingleRollout.of(self).run(feature, as64(linear_velocity0).reshape(3), as64(angular_velocity0).reshape(3),
                                          steps, None if warm_v is None else warm_v[0], None if warm_w is None else warm_w[0])
         return {k: None if x is None else torch.from_numpy(x) for k, x in out.items()}
 
-    def _rollout_changes(self, points, linear_velocity0, angular_velocity0, steps, warm_linear, warm_angular):
+    def _rollout_changes(self, points, linear_velocity0, angular_velocity0, steps, warm_linear, warm_angular,
+                         spin_inertia=None):
         device, f64 = self.device, torch.float64
         points = torch.as_tensor(points, dtype=torch.float32, device=device)
         B = points.shape[0]
         # One encoding per distinct cloud: a batch of requests often pushes the same object in the same pose
         # (in eval mode every cloud is encoded on its own, so this changes no number).
         unique, inverse = torch.unique(points.reshape(B, -1), dim=0, return_inverse=True)
-        feature = self.encode(unique.reshape(len(unique), *points.shape[1:]))[inverse]
+        feature = self.with_spin_inertia(self.encode(unique.reshape(len(unique), *points.shape[1:]))[inverse], spin_inertia)
         v = torch.as_tensor(linear_velocity0, dtype=f64, device=device).reshape(B, 3)
         w = torch.as_tensor(angular_velocity0, dtype=f64, device=device).reshape(B, 3)
         K = 0 if warm_linear is None else int(warm_linear.shape[1])
@@ -395,7 +413,7 @@ class DynamicsModel(LightningModule):
         return torch.cat(changes, dim=1), logit, self._corrected_targets(batch, v_fed, w_fed)
 
     def compute_loss(self, batch: dict[str, torch.Tensor]):
-        feature = self.encode(batch["points"])
+        feature = self.encode(batch["points"], batch.get("spin_inertia"))
         if self.training and self.config.rollout.feedback > 0:
             changes, logit, targets = self._closed_loop(feature, batch)
         else:

@@ -1,6 +1,10 @@
 """Slim a training checkpoint for shipping: weights, config and normalisation, no optimiser state.
 
     python -m physdyn.models.export runs/quickstart/best.ckpt physdyn/assets/bundled.ckpt
+    python -m physdyn.models.export runs/bundled/best.ckpt physdyn/assets/bundled.ckpt --set model.contact_inertia=body
+
+``--set`` changes a setting that acts at inference only (chosen on validation after training, as the
+bundled model's rest gate and spin inertia were): ``INFERENCE_KEYS``; the weights stay as trained.
 """
 
 from __future__ import annotations
@@ -10,16 +14,35 @@ import sys
 from pathlib import Path
 
 import torch
+import yaml
 
-from physdyn.errors import PhysdynError
+from physdyn.config import ExperimentConfig, config_from_dict, to_dict
+from physdyn.errors import ConfigError, PhysdynError
 from physdyn.files import atomic_output
+from physdyn.models.training import validate_experiment_config
 
 # What DynamicsModel.load_from_checkpoint needs; the optimiser, loops and callbacks are only for resuming.
 KEEP = ("state_dict", "hyper_parameters", "hparams_name", "pytorch-lightning_version", "epoch", "global_step",
         "topple_classifier")
+# Settings that change what a trained network is combined with, not the network itself.
+INFERENCE_KEYS = ("model.residual_gate_linear", "model.residual_gate_angular", "model.contact_inertia")
 
 
-def export_checkpoint(src: str | Path, dst: str | Path, overwrite: bool = False) -> Path:
+def apply_settings(hyper_parameters: dict, settings: list[str]) -> dict:
+    """hyper_parameters with each ``key=value`` of ``settings`` (keys from ``INFERENCE_KEYS``) written into
+    its config, checked as ``physdyn fit`` checks a config. Raises ``ConfigError``."""
+    config = dict(hyper_parameters["config"])
+    for item in settings:
+        key, sep, value = item.partition("=")
+        if not sep or key not in INFERENCE_KEYS:
+            raise ConfigError(f"--set {item!r}: use KEY=VALUE with KEY one of {', '.join(INFERENCE_KEYS)}")
+        section, name = key.split(".")
+        config[section] = {**config[section], name: yaml.safe_load(value)}
+    checked = validate_experiment_config(config_from_dict(ExperimentConfig, config))
+    return {**hyper_parameters, "config": to_dict(checked)}
+
+
+def export_checkpoint(src: str | Path, dst: str | Path, overwrite: bool = False, settings: list[str] | None = None) -> Path:
     src, dst = Path(src), Path(dst)
     if not src.is_file():
         raise PhysdynError(f"no checkpoint at {src}; train one with `physdyn fit`")
@@ -29,6 +52,8 @@ def export_checkpoint(src: str | Path, dst: str | Path, overwrite: bool = False)
     if "state_dict" not in checkpoint or "hyper_parameters" not in checkpoint:
         raise PhysdynError(f"{src} is not a `physdyn fit` checkpoint")
     slim = {key: checkpoint[key] for key in KEEP if key in checkpoint}
+    if settings:
+        slim["hyper_parameters"] = apply_settings(slim["hyper_parameters"], settings)
     dst.parent.mkdir(parents=True, exist_ok=True)
     with atomic_output(dst) as tmp:  # never a half-written checkpoint under the final name
         torch.save(slim, tmp)
@@ -40,9 +65,11 @@ def main() -> None:
     parser.add_argument("src")
     parser.add_argument("dst")
     parser.add_argument("--overwrite", action="store_true")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help=f"an inference setting to write into the config: {', '.join(INFERENCE_KEYS)}")
     args = parser.parse_args()
     try:
-        out = export_checkpoint(args.src, args.dst, args.overwrite)
+        out = export_checkpoint(args.src, args.dst, args.overwrite, args.set)
     except PhysdynError as exc:  # one line, like the physdyn command
         print(f"export: {exc}", file=sys.stderr)
         raise SystemExit(2) from None

@@ -39,6 +39,7 @@ from physdyn.models.rotations import rotate
 
 PRIORS = ("none", "kinematic", "coulomb", "planar", "contact")
 SHAPE_PRIORS = ("contact",)  # priors that read the point cloud and the orientation since it was taken
+CONTACT_INERTIA = ("points", "body")  # where the contact prior's spin inertia comes from (model.contact_inertia)
 
 # The contact prior's constants (see the module docstring; fitted on the quickstart store's training split).
 SUPPORT_POINTS = 4        # footprint points: Bullet's contact manifold keeps up to 4, spanning the largest area

@@ -26,7 +26,7 @@ from omegaconf import OmegaConf
 from physdyn.config import ExperimentConfig, load_config, to_dict
 from physdyn.data.normalization import NORMALIZATION_MODES
 from physdyn.models.losses import LOSS_KINDS
-from physdyn.models.priors import PRIORS, SHAPE_PRIORS
+from physdyn.models.priors import CONTACT_INERTIA, PRIORS, SHAPE_PRIORS
 from physdyn.data.store import StoreData
 from physdyn.errors import ConfigError, PhysdynError
 from physdyn.registry import ENCODERS, HEADS, PREDICTORS
@@ -73,6 +73,7 @@ def validate_experiment_config(cfg: ExperimentConfig) -> ExperimentConfig:
             raise ConfigError(f"config key 'model.{section}.name': missing; registered: {', '.join(registry.names())}")
         registry.resolve_config(comp.name, comp.params, f"model.{section}.params", name_key=f"model.{section}.name")
     choices = (("loss.kind", cfg.loss.kind, LOSS_KINDS), ("model.prior", m.prior, PRIORS),
+               ("model.contact_inertia", m.contact_inertia, CONTACT_INERTIA),
                ("data.normalization", cfg.data.normalization, NORMALIZATION_MODES))
     for key, value, allowed in choices:
         if value not in allowed:

@@ -21,6 +21,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from physdyn.errors import PhysdynError, PredictionError, PredictionWarning
+from physdyn.geometry.mass import vertical_inertia
 from physdyn.predict.body import PreparedBody, initial_pose, prepare_body
 from physdyn.predict.simulator import SIMULATOR_NAME, simulate_from_state
 
@@ -190,6 +191,9 @@ class Predictor:
         bodies = self._bodies(meshes, scales)
         p0 = np.stack([initial_pose(body.spec, q) for body, q in zip(bodies, q0)])
         points = np.stack([body.points_body(self.num_points) for body in bodies])
+        # the mesh's own mass properties, for a contact prior that takes them (model.contact_inertia=body)
+        spin_inertia = np.array([vertical_inertia(body.spec.inertia_diag, body.spec.principal_axes, body.spec.mass, q)
+                                 for body, q in zip(bodies, q0)])
         classifier = getattr(self.model, "topple_classifier", None)
         topple_points = None if classifier is None else np.stack(
             [body.points_body(classifier.num_points or DEFAULT_NUM_POINTS) for body in bodies])
@@ -199,7 +203,8 @@ class Predictor:
             for lo in range(0, len(same), int(chunk_size)):
                 idx = same[lo : lo + int(chunk_size)]
                 rolled = rollout(self.model, points[idx], q0[idx], p0[idx], v0[idx], w0[idx], T - 1,
-                                 topple_points_body=None if topple_points is None else topple_points[idx])
+                                 topple_points_body=None if topple_points is None else topple_points[idx],
+                                 spin_inertia=spin_inertia[idx])
                 for b, r in enumerate(idx):
                     out = rolled.sequence(b)
                     probability = out["topple_probability"]

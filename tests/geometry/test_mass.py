@@ -66,3 +66,20 @@ def test_principal_axes_are_a_rotation_and_diagonalise():
     np.testing.assert_allclose(axes.T @ p.inertia @ axes, np.diag(moments), atol=1e-12)
     m = DENSITY * 0.3 * 0.1 * 0.05
     np.testing.assert_allclose(np.sort(moments), np.sort(box_inertia(m, 0.3, 0.1, 0.05)), rtol=1e-9)
+
+
+def test_vertical_inertia_is_the_turned_tensors_zz_per_mass(box):
+    from scipy.spatial.transform import Rotation
+
+    from physdyn.geometry.mass import vertical_inertia
+
+    props = exact_mass_properties(box, DENSITY)
+    moments, axes = props.principal()
+    np.testing.assert_allclose(vertical_inertia(moments, axes, props.mass, np.array([0.0, 0.0, 0.0, 1.0])),
+                               box_inertia(1.0, 0.073, 0.060, 0.170)[2], rtol=1e-9)  # upright: (a^2 + b^2) / 12
+    q = Rotation.random(4, random_state=0).as_quat()
+    R = Rotation.from_quat(q).as_matrix()
+    tensor = axes @ np.diag(moments) @ axes.T
+    expected = np.einsum("bi,ij,bj->b", R[:, 2, :], tensor, R[:, 2, :]) / props.mass
+    got = vertical_inertia(np.tile(moments, (4, 1)), np.tile(axes, (4, 1, 1)), np.full(4, props.mass), q)
+    np.testing.assert_allclose(got, expected, rtol=1e-9)

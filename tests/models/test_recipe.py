@@ -35,6 +35,7 @@ LEVERS = [
     ["model.prior=coulomb", "model.orientation_input=true", "data.normalization=std"],
     ["model.prior=planar", "data.normalization=std_inputs", "rollout.feedback=1.0"],
     ["model.prior=contact", "model.orientation_input=true", "rollout.feedback=1.0", "loss.kind=huber"],
+    ["model.prior=contact", "model.orientation_input=true", "model.contact_inertia=body"],
     ["model.prior=planar", "model.residual_gate_linear=0.1", "model.residual_gate_angular=1.0"],
 ]
 

@@ -85,3 +85,38 @@ def test_other_predictors_take_the_torch_loop(quickstart_config, store):
     points, v0, w0, _ = _first_state(store, int(select_sequences(store, "test")[0]))
     out = model.rollout_changes(points, v0, w0, 5)
     assert out["changes"].shape == (1, 5, 12) and torch.isfinite(out["changes"]).all()
+
+
+def test_contact_inertia_body_spins_the_prior_with_the_given_inertia(quickstart_config, store):
+    from physdyn.data.windows import store_spin_inertia
+
+    sims = select_sequences(store, "test")[:4]
+    truth = gather_truth(store, sims)
+    points = store.points[store.shape_id[sims]]
+    q0, v0, w0 = truth["orientation_xyzw"][:, 0], truth["linear_velocity"][:, 0], truth["angular_velocity"][:, 0]
+    exact = store_spin_inertia(store, sims, q0)
+    body = _model(quickstart_config, store, RECIPES[0] + ["model.contact_inertia=body"])
+    points_model = _model(quickstart_config, store, RECIPES[0])
+    column = -2  # the code ends with I_zz / m and the height of the centre of mass
+    world = world_oriented_points(points, q0).astype(np.float32)
+    np.testing.assert_allclose(body.encode_points(world, exact)[:, column].numpy(), exact, rtol=1e-6)
+    estimate = points_model.encode_points(world)[:, column].numpy()
+    assert not np.allclose(estimate, exact, rtol=0.02)  # the cloud's estimate is another number
+    np.testing.assert_allclose(points_model.encode_points(world, exact)[:, column].numpy(), estimate)  # "points" ignores it
+    unknown = np.array([np.nan, 0.0, exact[2], exact[3]])  # no usable mass properties: the estimate
+    np.testing.assert_allclose(body.encode_points(world, unknown)[:, column].numpy(), [*estimate[:2], *exact[2:]], rtol=1e-6)
+    # training windows carry it for the window's first step, as roll-outs get it for step 0
+    from physdyn.data.windows import WindowSource
+
+    starts = np.array([0, 3, 5, 0])
+    window = WindowSource(store, 5).gather(sims, starts)
+    first = store.start[sims] + np.minimum(starts, store.lengths()[sims] - 1)
+    np.testing.assert_allclose(window["spin_inertia"], store_spin_inertia(store, sims, store.orientation_xyzw[first]), rtol=1e-6)
+    # a roll-out with the body's inertia: batched and one object at a time alike
+    from physdyn.eval.rollout import rollout
+
+    batch = rollout(body, points, q0, truth["com_position"][:, 0], v0, w0, 20, spin_inertia=exact)
+    one = rollout(body, points[:1], q0[:1], truth["com_position"][:1, 0], v0[:1], w0[:1], 20, spin_inertia=exact[:1])
+    np.testing.assert_allclose(one.com_position, batch.com_position[:1], atol=1e-5)
+    plain = rollout(body, points[:1], q0[:1], truth["com_position"][:1, 0], v0[:1], w0[:1], 20)
+    assert np.abs(plain.delta_rotation - one.delta_rotation).max() > 1e-4  # the inertia changed the spin

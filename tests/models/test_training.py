@@ -326,6 +326,16 @@ def test_export_keeps_what_prediction_needs_and_nothing_to_resume(quickstart_con
     assert a["headline"] == b["headline"] and a["topple"] == b["topple"]
     with pytest.raises(PhysdynError, match="exists; pass --overwrite"):
         export_checkpoint(full, slim)
+    # inference settings chosen after training go into the shipped config, checked as fit checks them
+    tuned = export_checkpoint(full, tmp_path / "tuned.ckpt", settings=["model.contact_inertia=body",
+                                                                        "model.residual_gate_linear=0.2"])
+    model = load_checkpoint(tuned)
+    assert model.config.model.contact_inertia == "body" and model.config.model.residual_gate_linear == 0.2
+    torch.testing.assert_close(model.state_dict(), load_checkpoint(slim).state_dict())
+    for bad in ("model.prior=none", "model.contact_inertia=exact", "contact_inertia"):
+        with pytest.raises(ConfigError):
+            export_checkpoint(full, tmp_path / "bad.ckpt", settings=[bad])
+    assert not (tmp_path / "bad.ckpt").exists()
 
 
 def test_trainer_keys_physdyn_sets_itself_are_refused_by_name(tiny_store, tmp_path):
