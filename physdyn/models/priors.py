@@ -21,12 +21,13 @@ priors are pure functions of the velocities fed at step t, so teacher forcing an
   alone is closer on both position and rotation) carry the weight; the pressure over them is tilted so
   that its centre lies under the centre of mass (moment balance), leaning towards the travel as friction
   tips the object forward (half of mu times the height of the centre of mass, a fitted factor); the spin's
-  inertia is 0.8 times the points' mean squared distance from the vertical through the centre of mass
-  (fitted). Each point's friction opposes its own sliding velocity v + w_z x r, so a spinning object
-  slides farther and curves. Alone, with no learning, it predicts the final position of non-toppling
-  quickstart objects at 0.54-0.58x Coulomb sliding's median error and their rotation to 16-17 degrees
-  (``python benchmarks/priors.py``; docs/ablations.md). It needs the shape (``contact_geometry``) and the
-  orientation since the points were taken.
+  inertia is the body's own I_zz / m where the caller knows it (``model.contact_inertia=body``), else 0.8
+  times the points' mean squared distance from the vertical through the centre of mass (fitted). Each
+  point's friction opposes its own sliding velocity v + w_z x r, so a spinning object slides farther and
+  curves. Alone, with no learning, it predicts the final position of non-toppling quickstart objects at
+  0.49-0.50x Coulomb sliding's median error and their rotation to 13-14 degrees with the body's inertia
+  (0.50-0.54x, 14-15 degrees with the estimate; ``python benchmarks/priors.py``; docs/ablations.md). It
+  needs the shape (``contact_geometry``) and the orientation since the points were taken.
 """
 
 from __future__ import annotations
