@@ -52,40 +52,50 @@ def _unit(x: np.ndarray) -> np.ndarray:
     return x / n if n > 1e-9 else np.array([1.0, 0.0])
 
 
+def _cloud_features(P: np.ndarray) -> dict[str, Any]:
+    """What the features need of one cloud alone, whatever the push: height, footprint hull, moments."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    z = P[:, 2]
+    foot = P[z <= z.min() + FOOTPRINT_DEPTH, :2]
+    hull = None
+    if len(foot) >= 3:
+        try:
+            hull = ConvexHull(foot, qhull_options="QJ")
+        except QhullError:  # collinear points: a line contact, no area
+            hull = None
+    if hull is not None:
+        eq, area, edge_min, corners = hull.equations, float(hull.volume), float((-hull.equations[:, 2]).min()), foot[hull.vertices]
+    else:
+        eq, area, edge_min, corners = None, 0.0, 0.0, foot
+    second = P.T @ P / len(P)
+    return {"h": -float(z.min()), "eq": eq, "area": area, "edge_min": edge_min,
+            "radius": float(np.linalg.norm(corners, axis=1).max()) if len(corners) else 0.0,
+            "extent": P.max(axis=0) - P.min(axis=0), "second": second,
+            "inertia": INERTIA_SHAPE_FACTOR * (np.trace(second) * np.eye(3) - second)}  # per unit mass
+
+
 def topple_features(points: np.ndarray, linear_velocity: np.ndarray, angular_velocity: np.ndarray,
                     friction: float = 0.25) -> np.ndarray:
     """points (B, N, 3): the body's cloud in its step-0 world orientation, centre of mass at the origin;
-    velocities (B, 3) at step 0, world frame -> (B, len(FEATURE_NAMES)) float64."""
-    from scipy.spatial import ConvexHull, QhullError
-
+    velocities (B, 3) at step 0, world frame -> (B, len(FEATURE_NAMES)) float64. A cloud repeated in the
+    batch (one mesh pushed many times) is measured once."""
     points = np.asarray(points, np.float64)
     v0 = np.asarray(linear_velocity, np.float64).reshape(-1, 3)
     w0 = np.asarray(angular_velocity, np.float64).reshape(-1, 3)
     rows = np.empty((len(points), len(FEATURE_NAMES)))
+    clouds: dict[bytes, dict[str, Any]] = {}
     for b, P in enumerate(points):
-        z = P[:, 2]
-        h = -float(z.min())
-        foot = P[z <= z.min() + FOOTPRINT_DEPTH, :2]
-        hull = None
-        if len(foot) >= 3:
-            try:
-                hull = ConvexHull(foot, qhull_options="QJ")
-            except QhullError:  # collinear points: a line contact, no area
-                hull = None
-        if hull is not None:
-            eq, area = hull.equations, float(hull.volume)
-            edge_min = float((-eq[:, 2]).min())
-            corners = foot[hull.vertices]
-        else:
-            eq, area, edge_min, corners = None, 0.0, 0.0, foot
+        key = P.tobytes()
+        if key not in clouds:
+            clouds[key] = _cloud_features(P)
+        c = clouds[key]
+        h, eq, edge_min, inertia = c["h"], c["eq"], c["edge_min"], c["inertia"]
         vxy, wxy = v0[b, :2], w0[b, :2]
         travel = _unit(vxy)
         tip = _unit(np.array([wxy[1], -wxy[0]]))  # where the top goes under the horizontal spin
         edge = (lambda d: _ray_to_hull(eq, d)) if eq is not None else (lambda d: 0.0)
         e_travel, e_back, e_tip = edge(travel), edge(-travel), edge(tip)
-        extent = P.max(axis=0) - P.min(axis=0)
-        second = P.T @ P / len(P)
-        inertia = INERTIA_SHAPE_FACTOR * (np.trace(second) * np.eye(3) - second)  # per unit mass
         tip_energy = lambda e: GRAVITY * (np.sqrt(h * h + e * e) - h)  # noqa: E731
         w_xy = float(np.linalg.norm(wxy))
         axis = np.array([wxy[0], wxy[1], 0.0]) / w_xy if w_xy > 1e-9 else np.array([1.0, 0.0, 0.0])
@@ -94,11 +104,11 @@ def topple_features(points: np.ndarray, linear_velocity: np.ndarray, angular_vel
         kinetic_linear = 0.5 * float(v0[b] @ v0[b])
         kinetic_rotation = 0.5 * float(w0[b] @ inertia @ w0[b])
         e_tip_energy, e_travel_energy = tip_energy(e_tip), tip_energy(e_travel)
+        extent = c["extent"]
         rows[b] = (
-            float(np.linalg.norm(vxy)), v0[b, 2], w_xy, w0[b, 2], float(np.array([wxy[1], -wxy[0]]) @ travel), h, area,
-            float(np.linalg.norm(corners, axis=1).max()) if len(corners) else 0.0,
-            edge_min, e_travel, e_back, e_tip, extent[0], extent[1], extent[2], float(np.sqrt(np.trace(second))),
-            inertia[0, 0], inertia[1, 1], inertia[2, 2],
+            float(np.linalg.norm(vxy)), v0[b, 2], w_xy, w0[b, 2], float(np.array([wxy[1], -wxy[0]]) @ travel), h, c["area"],
+            c["radius"], edge_min, e_travel, e_back, e_tip, extent[0], extent[1], extent[2],
+            float(np.sqrt(np.trace(c["second"]))), inertia[0, 0], inertia[1, 1], inertia[2, 2],
             h / max(edge_min, 1e-4), h / max(e_travel, 1e-4), h / max(e_tip, 1e-4),
             e_travel_energy, e_tip_energy, tip_energy(edge_min), kinetic_linear, kinetic_rotation, kinetic_tilt,
             kinetic_tilt / max(e_tip_energy, 1e-6), np.log(kinetic_tilt + 1e-6) - np.log(e_tip_energy + 1e-6),
