@@ -167,7 +167,7 @@ class ShapeClassifier(LightningModule):
         self._step(batch, "val", False)
 
     def configure_optimizers(self):
-        from physdyn.models.dynamics_module import adam_with_schedule
+        from physdyn.models.optimizer import adam_with_schedule
 
         total = float(self.trainer.estimated_stepping_batches)
         per_step = self.hparams.get("batch_size", 1) * self.trainer.world_size

@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from physdyn.models.dynamics_module import learning_rate_factor
+from physdyn.models.optimizer import learning_rate_factor
 from physdyn.models.losses import dynamics_loss, relative_error
 
 

@@ -96,7 +96,7 @@ def test_contact_inertia_body_spins_the_prior_with_the_given_inertia(quickstart_
     q0, v0, w0 = truth["orientation_xyzw"][:, 0], truth["linear_velocity"][:, 0], truth["angular_velocity"][:, 0]
     exact = store_spin_inertia(store, sims, q0)
     body = _model(quickstart_config, store, RECIPES[0] + ["model.contact_inertia=body"])
-    points_model = _model(quickstart_config, store, RECIPES[0])
+    points_model = _model(quickstart_config, store, RECIPES[0] + ["model.contact_inertia=points"])
     column = -2  # the code ends with I_zz / m and the height of the centre of mass
     world = world_oriented_points(points, q0).astype(np.float32)
     np.testing.assert_allclose(body.encode_points(world, exact)[:, column].numpy(), exact, rtol=1e-6)
