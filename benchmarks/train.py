@@ -5,6 +5,10 @@
 Uses the real presets (configs/experiment/*.yaml) with the given store, the real DataModule and the
 model's own loss; one optimiser step per batch, as in training. The first steps are warm-up and not
 timed. Aim: data wait < 10 % of step time.
+
+Beside each preset, the shape encoder alone (forward and backward of the same batch, nothing else): its
+multiply-adds per sequence, the arithmetic rate this CPU reaches on them, and the sequences/s it allows —
+a ceiling on training throughput, since every step encodes every window's cloud.
 """
 
 from __future__ import annotations
@@ -54,10 +58,31 @@ def measure(preset: str, store: str, steps: int, warmup: int = 2, overrides: lis
             done += 1
     total = data_s + compute_s
     params = sum(p.numel() for p in model.parameters())
+    encoder_s, macs = encoder_alone(model, batch["points"], steps)
     return {
+        "encoder_sequences_per_s": len(batch["points"]) / encoder_s, "encoder_macs": macs,
+        "encoder_gflops": 3 * 2 * macs * len(batch["points"]) / encoder_s / 1e9,
         "preset": preset, "params": params, "batch": cfg.data.batch_size, "points": cfg.data.num_points,
         "sequences_per_s": sequences / total, "data_share": data_s / total, "steps": steps,
     }
+
+
+def encoder_alone(model, points: torch.Tensor, steps: int) -> tuple[float, float]:
+    """Seconds per forward + backward of the encoder on one batch, and its multiply-adds per sequence
+    (the per-point layers of a PointNet-like encoder: in x out channels x points; the layers after the
+    pooling are a rounding error)."""
+    encoder = model.encoder
+    macs = 0.0
+    for layer in encoder.modules():
+        if isinstance(layer, torch.nn.Conv1d):
+            macs += layer.in_channels * layer.out_channels * points.shape[1]
+    scaled = points / model.point_scale
+    times = []
+    for _ in range(max(steps, 3)):
+        t0 = time.perf_counter()
+        encoder(scaled).sum().backward()
+        times.append(time.perf_counter() - t0)
+    return sorted(times)[len(times) // 2], macs
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -78,6 +103,11 @@ def main(argv: list[str] | None = None) -> int:
             f"{r['preset']:<12} {r['params'] / 1e6:6.2f} M params, batch {r['batch']}, {r['points']} points: "
             f"{r['sequences_per_s']:7.1f} sequences/s, data wait {100 * r['data_share']:4.1f} % of step time "
             f"({r['steps']} steps)"
+        )
+        print(
+            f"{'':<12} the encoder alone: {r['encoder_macs'] / 1e6:.1f} M multiply-adds per sequence forward, "
+            f"forward + backward at {r['encoder_gflops']:.0f} GFLOP/s (x3 for the backward pass): at most "
+            f"{r['encoder_sequences_per_s']:.0f} sequences/s"
         )
     return 0
 
