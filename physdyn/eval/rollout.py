@@ -155,6 +155,8 @@ def rollout(
     points = world_oriented_points(_numpy(points_body), q0).astype(np.float32)
     if hasattr(model, "rollout_changes") and not stepwise:
         kwargs = {} if spin_inertia is None else {"spin_inertia": spin_inertia}
+        if getattr(model, "topple_classifier", None) is not None:
+            kwargs["topple"] = False  # the classifier's probabilities replace the head's
         out = model.rollout_changes(points, lin_vel0, ang_vel0, steps, warm_v if K else None, warm_w if K else None, **kwargs)
         changes, fed = _numpy(out["changes"]), _numpy(out["fed"])
         deltas = {k: changes[..., 3 * i : 3 * i + 3] for i, k in enumerate(DELTA_KEYS)}

@@ -96,9 +96,14 @@ class SingleRollout:
         return cached[1]
 
     def run(self, feature: torch.Tensor, v0: np.ndarray, w0: np.ndarray, steps: int,
-            warm_v: np.ndarray | None, warm_w: np.ndarray | None) -> dict[str, np.ndarray | None]:
+            warm_v: np.ndarray | None, warm_w: np.ndarray | None, topple: bool = True) -> dict[str, np.ndarray | None]:
         """feature (1, F) from ``DynamicsModel.encode``; v0, w0 (3,) float64; warm_* (K, 3) or None ->
-        the arrays of ``rollout_changes`` for one sequence: changes (1, S, 12), fed (1, S, 6), topple (1, S)."""
+        the arrays of ``rollout_changes`` for one sequence: changes (1, S, 12), fed (1, S, 6), topple (1, S)
+        (None with ``topple=False``, when the caller does not use the head's probabilities).
+
+        Below the rest gate the network's changes are not used: without topple probabilities to report,
+        such a step only queues its input, and the LSTM takes the queue before the next step that needs it
+        (the same states, in the same order); a roll-out that ends at rest never runs it for its tail."""
         code = feature[0].detach().cpu().numpy().astype(np.float32)
         shape, geometry = code[: self.encoder_width], code[self.encoder_width:].tolist()
         # The shape's part of the first layer's input is the same at every step: multiply it once.
@@ -113,7 +118,18 @@ class SingleRollout:
         K = 0 if warm_v is None else len(warm_v)
         changes = np.empty((steps, 12))
         fed = np.empty((steps, 6))
-        topple = np.empty(steps) if self.predicts_topple else None
+        topple = np.empty(steps) if self.predicts_topple and topple else None
+        gated = self.prior != "none" and (self.gate_linear > 0 or self.gate_angular > 0)
+        queued: list[np.ndarray] = []
+
+        def lstm(x: np.ndarray) -> np.ndarray:
+            for layer, (weight, bias) in enumerate(layers):
+                gates = np.concatenate([x, h[layer]]) @ weight + bias
+                s = expit(gates)
+                c[layer] = s[H : 2 * H] * c[layer] + s[:H] * np.tanh(gates[2 * H : 3 * H])
+                x = h[layer] = s[3 * H :] * np.tanh(c[layer])
+            return x
+
         for t in range(steps):
             if 1 <= t <= K:
                 v, w = [float(x) for x in warm_v[t - 1]], [float(x) for x in warm_w[t - 1]]
@@ -125,19 +141,18 @@ class SingleRollout:
             if self.varying > 6:
                 q32 = np.array(turn, np.float32).tolist()
                 x = np.concatenate([x, np.array(_rotation_6d(*q32), np.float32)])
-            for layer, (weight, bias) in enumerate(layers):
-                gates = np.concatenate([x, h[layer]]) @ weight + bias
-                s = expit(gates)
-                c[layer] = s[H : 2 * H] * c[layer] + s[:H] * np.tanh(gates[2 * H : 3 * H])
-                x = h[layer] = s[3 * H :] * np.tanh(c[layer])
-            out = x @ self.head_weight + self.head_bias
-            step = out[:12]
+            moving = not gated or (math.hypot(v32[0], v32[1]) > self.gate_linear
+                                   or math.sqrt(w32[0] ** 2 + w32[1] ** 2 + w32[2] ** 2) > self.gate_angular)
+            if moving or topple is not None:
+                for queued_x in queued:
+                    lstm(queued_x)
+                queued.clear()
+                out = lstm(x) @ self.head_weight + self.head_bias
+                step = out[:12] if moving else np.zeros(12, np.float32)
+            else:
+                queued.append(x)
+                step = np.zeros(12, np.float32)
             if self.prior != "none":
-                if self.gate_linear > 0 or self.gate_angular > 0:
-                    moving = (math.hypot(v32[0], v32[1]) > self.gate_linear
-                              or math.sqrt(w32[0] ** 2 + w32[1] ** 2 + w32[2] ** 2) > self.gate_angular)
-                    if not moving:
-                        step = np.zeros(12, np.float32)
                 step = step + (self._prior(v32, w32, q32, geometry) - self.change_shift32) / self.change_scale32
             si = step.astype(np.float64) * self.change_scale + self.change_shift
             changes[t] = si
