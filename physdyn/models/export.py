@@ -4,7 +4,8 @@
     python -m physdyn.models.export runs/bundled/best.ckpt physdyn/assets/bundled.ckpt --set model.contact_inertia=body
 
 ``--set`` changes a setting that acts at inference only (chosen on validation after training, as the
-bundled model's rest gate and spin inertia were): ``INFERENCE_KEYS``; the weights stay as trained.
+bundled model's rest gate was) or the model's name in reports: ``INFERENCE_KEYS``; the weights stay as
+trained.
 """
 
 from __future__ import annotations
@@ -24,8 +25,9 @@ from physdyn.models.training import validate_experiment_config
 # What DynamicsModel.load_from_checkpoint needs; the optimiser, loops and callbacks are only for resuming.
 KEEP = ("state_dict", "hyper_parameters", "hparams_name", "pytorch-lightning_version", "epoch", "global_step",
         "topple_classifier")
-# Settings that change what a trained network is combined with, not the network itself.
-INFERENCE_KEYS = ("model.residual_gate_linear", "model.residual_gate_angular", "model.contact_inertia")
+# Settings that change what a trained network is combined with, not the network itself, and the name
+# reports give the model.
+INFERENCE_KEYS = ("model.residual_gate_linear", "model.residual_gate_angular", "model.contact_inertia", "name")
 
 
 def apply_settings(hyper_parameters: dict, settings: list[str]) -> dict:
@@ -36,8 +38,11 @@ def apply_settings(hyper_parameters: dict, settings: list[str]) -> dict:
         key, sep, value = item.partition("=")
         if not sep or key not in INFERENCE_KEYS:
             raise ConfigError(f"--set {item!r}: use KEY=VALUE with KEY one of {', '.join(INFERENCE_KEYS)}")
-        section, name = key.split(".")
-        config[section] = {**config[section], name: yaml.safe_load(value)}
+        if "." in key:
+            section, name = key.split(".")
+            config[section] = {**config[section], name: yaml.safe_load(value)}
+        else:
+            config[key] = value
     checked = validate_experiment_config(config_from_dict(ExperimentConfig, config))
     return {**hyper_parameters, "config": to_dict(checked)}
 
