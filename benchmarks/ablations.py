@@ -24,7 +24,8 @@ import numpy as np
 import torch
 
 from physdyn.eval.evaluate import compare
-from physdyn.models.training import FINISHED, fit, load_experiment_config
+from physdyn.models.run_directory import FINISHED
+from physdyn.models.training import fit, load_experiment_config
 
 REPO = Path(__file__).resolve().parents[1]
 NOTES_MARK = "<!-- written by hand below this line; benchmarks/ablations.py keeps it -->"

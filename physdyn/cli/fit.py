@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
 
     config = load_experiment_config(args.config and preset_path(args.config, "experiment"), split_overrides(args.parser, args))
     result = fit(config, resume=args.resume, overwrite=args.overwrite)
-    from physdyn.models.training import is_global_zero_process
+    from physdyn.models.run_directory import is_global_zero_process
 
     if is_global_zero_process():
         best = result.metrics.get("best_val_loss")

@@ -34,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from physdyn.cli import split_overrides
     from physdyn.models.pretrain import load_pretrain_config, pretrain
-    from physdyn.models.training import is_global_zero_process
+    from physdyn.models.run_directory import is_global_zero_process
 
     from physdyn.config import preset_path
 

@@ -175,7 +175,7 @@ class ShapeClassifier(LightningModule):
 
 
 def load_pretrain_config(path, overrides: list[str] | None = None) -> PretrainConfig:
-    from physdyn.models.training import validate_trainer_args
+    from physdyn.models.trainer_setup import validate_trainer_args
 
     cfg = load_config(PretrainConfig, path, overrides)
     if not cfg.encoder.name:
@@ -201,9 +201,8 @@ def pretrain(config: PretrainConfig, overwrite: bool = False) -> PretrainResult:
     from lightning.pytorch.callbacks import ModelCheckpoint
 
     from physdyn.config import to_dict
-    from physdyn.models.training import (
-        FINISHED, build_trainer, ignore_lightning_noise, prepare_run_directory, run_directory, save_config_yaml,
-    )
+    from physdyn.models.run_directory import FINISHED, prepare_run_directory, run_directory, save_config_yaml
+    from physdyn.models.trainer_setup import build_trainer, ignore_lightning_noise
 
     cfg = config
     out_dir = run_directory(cfg)

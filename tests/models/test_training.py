@@ -162,7 +162,7 @@ def test_resume_continues_and_finished_runs_are_protected(quickstart_config):
 @pytest.mark.slow  # seconds-scale; the default run stays near 3 minutes, CI runs it (-m slow)
 def test_cli_fit_output_is_free_of_lightning_noise(tiny_store, tmp_path):
     # Lightning's cloud-logger tip and a torch deprecation warning it triggers used to print on every run.
-    from physdyn.models.training import LIGHTNING_NOISE
+    from physdyn.models.trainer_setup import LIGHTNING_NOISE
 
     proc = run_cli("fit", "--config", str(QUICKSTART), *shrunk_overrides(tiny_store, tmp_path / "r", "progress_bar=true"))
     assert proc.returncode == 0, proc.stderr
@@ -293,7 +293,7 @@ def test_a_killed_fit_resumes_to_the_planned_step_and_keeps_its_history(tiny_sto
 
 
 def test_a_command_without_resume_is_never_told_to_pass_it(tmp_path):
-    from physdyn.models.training import prepare_run_directory
+    from physdyn.models.run_directory import prepare_run_directory
 
     run = tmp_path / "pre"
     run.mkdir()
@@ -340,7 +340,7 @@ def test_export_keeps_what_prediction_needs_and_nothing_to_resume(quickstart_con
 
 
 def test_trainer_keys_physdyn_sets_itself_are_refused_by_name(tiny_store, tmp_path):
-    from physdyn.models.training import RESERVED_TRAINER_KEYS
+    from physdyn.models.trainer_setup import RESERVED_TRAINER_KEYS
 
     for key in RESERVED_TRAINER_KEYS:
         with pytest.raises(ConfigError, match=f"trainer.{key}"):
