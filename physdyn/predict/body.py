@@ -31,10 +31,10 @@ class PreparedBody:
         """(num_points, 3) float32 surface points in the body frame (mesh axes, origin at the com)."""
         if num_points not in self._points:
             from physdyn.config import DataConfig
-            from physdyn.geometry.sampling import sample_surface_points
+            from physdyn.sim.body import body_surface_points
 
-            pts = sample_surface_points(self.mesh, num_points, DataConfig().oversample, seed=POINTS_SEED)
-            self._points[num_points] = (pts - self.spec.com_mesh).astype(np.float32)
+            self._points[num_points] = body_surface_points(self.mesh, self.spec, num_points, DataConfig().oversample,
+                                                           POINTS_SEED)
         return self._points[num_points]
 
 
@@ -45,9 +45,8 @@ def prepare_body(mesh: Any, scale: float = 1.0, density: float | None = None) ->
 
     from physdyn.config import MassConfig
     from physdyn.errors import ShapeError
-    from physdyn.geometry.mass import solid_mass_properties
-    from physdyn.geometry.mesh_io import check_mesh, load_mesh, prepare_mesh
-    from physdyn.sim.body import RigidBodySpec
+    from physdyn.geometry.mesh_io import check_mesh, load_mesh
+    from physdyn.sim.body import rigid_body
 
     if isinstance(mesh, PreparedBody):
         return mesh
@@ -64,11 +63,9 @@ def prepare_body(mesh: Any, scale: float = 1.0, density: float | None = None) ->
         raw = load_mesh(mesh, scale)
     else:
         raise PredictionError(f"mesh must be a file path or a trimesh.Trimesh, got {type(mesh).__name__}")
-    prepared = prepare_mesh(raw, name)
     density = MassConfig().density if density is None else float(density)
-    props = solid_mass_properties(prepared.mesh, prepared.watertight, density, f"mesh {name}")
-    spec = RigidBodySpec.from_mesh(prepared.mesh, props)
-    return PreparedBody(mesh=prepared.mesh, spec=spec, name=name, notes=list(prepared.warnings), scale=float(scale))
+    body = rigid_body(raw, name, density, mass_name=f"mesh {name}")
+    return PreparedBody(mesh=body.mesh, spec=body.spec, name=name, notes=body.notes, scale=float(scale))
 
 
 def initial_pose(spec: Any, orientation_xyzw: np.ndarray) -> np.ndarray:

@@ -1,14 +1,21 @@
-"""A shape turned into what the simulator needs: mass properties, principal frame and collision hull."""
+"""A shape turned into what the simulator needs: mass properties, principal frame and collision hull.
+
+``rigid_body`` is the one way a mesh becomes a body — for dataset generation, motion-capture trials and
+prediction alike: the mesh cleaned, the mass properties of the solid it bounds (or of its convex hull when
+it bounds none, with a note), the simulator's ``RigidBodySpec``, and surface points in the body frame.
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import trimesh
 
-from physdyn.geometry.mass import MassProperties
+from physdyn.geometry.mass import MassProperties, solid_mass_properties
+from physdyn.geometry.mesh_io import prepare_mesh
 from physdyn.geometry.rotations import matrix_to_quat
+from physdyn.geometry.sampling import sample_surface_points
 
 
 @dataclass
@@ -47,3 +54,38 @@ class RigidBodySpec:
     def body_vertices(self) -> np.ndarray:
         """Hull vertices in the body frame (mesh axes, origin at the centre of mass)."""
         return self.hull_vertices @ self.principal_axes.T
+
+
+@dataclass
+class RigidBody:
+    """A mesh made into a rigid body: ``mesh`` cleaned (mesh frame, metres), its mass ``props`` and
+    simulator ``spec``; ``watertight``: whether the mass is the solid's (else its convex hull's); ``notes``:
+    one-line warnings from cleaning (e.g. that the hull was used)."""
+
+    mesh: trimesh.Trimesh
+    props: MassProperties
+    spec: RigidBodySpec
+    watertight: bool
+    notes: list[str] = field(default_factory=list)
+
+    def surface_points(self, num_points: int, oversample: int, seed: int) -> np.ndarray:
+        return body_surface_points(self.mesh, self.spec, num_points, oversample, seed)
+
+
+def body_surface_points(mesh: trimesh.Trimesh, spec: RigidBodySpec, num_points: int, oversample: int,
+                        seed: int) -> np.ndarray:
+    """(num_points, 3) float32 surface points of ``mesh`` in the body frame (mesh axes, origin at the centre
+    of mass), as the stores hold them."""
+    points = sample_surface_points(mesh, num_points, oversample, seed=seed)
+    return (points - spec.com_mesh).astype(np.float32)
+
+
+def rigid_body(mesh: trimesh.Trimesh, name: str, density: float, method: str = "exact", voxel_pitch: float = 0.025,
+               mass_name: str | None = None) -> RigidBody:
+    """Clean ``mesh`` (``prepare_mesh``; ``name`` in its messages) and compute its mass properties at uniform
+    ``density`` (``method`` exact or voxel; ``mass_name`` in their messages, default ``name``). Raises
+    ``ShapeError`` for a mesh that is no usable solid."""
+    prepared = prepare_mesh(mesh, name)
+    props = solid_mass_properties(prepared.mesh, prepared.watertight, density, mass_name or name, method, voxel_pitch)
+    return RigidBody(prepared.mesh, props, RigidBodySpec.from_mesh(prepared.mesh, props), prepared.watertight,
+                     list(prepared.warnings))

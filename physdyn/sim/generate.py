@@ -172,27 +172,22 @@ def _worker_state(cfg: DataConfig) -> dict:
 
 def prepare_shape(cfg: DataConfig, family, task: ShapeTask) -> dict:
     """Draw one shape and compute everything stored about it. Raises ShapeError if it is unusable."""
-    from physdyn.geometry.mass import exact_mass_properties, solid_mass_properties
-    from physdyn.geometry.mesh_io import prepare_mesh
+    from physdyn.geometry.mass import exact_mass_properties
     from physdyn.geometry.poses import stable_orientations
-    from physdyn.geometry.sampling import sample_surface_points
-    from physdyn.sim.body import RigidBodySpec
+    from physdyn.sim.body import rigid_body
 
     shape_ss, sims_ss, points_ss = task_streams(cfg, task)
     instance = family.make(task.index, np.random.default_rng(shape_ss))
-    prepared = prepare_mesh(instance.mesh, instance.source)
-    mesh, notes = prepared.mesh, list(prepared.warnings)
-    # Not watertight: the hull's exact properties (prepare_mesh's warning already tells the user).
-    props = solid_mass_properties(mesh, prepared.watertight, cfg.mass.density, instance.source, cfg.mass.method,
-                                  cfg.mass.voxel_pitch)
-    exact = exact_mass_properties(mesh, cfg.mass.density) if prepared.watertight and cfg.mass.method != "exact" else props
-    spec = RigidBodySpec.from_mesh(mesh, props)
+    # Not watertight: the hull's exact properties (the cleaning's warning already tells the user).
+    body = rigid_body(instance.mesh, instance.source, cfg.mass.density, cfg.mass.method, cfg.mass.voxel_pitch)
+    mesh, props = body.mesh, body.props
+    exact = exact_mass_properties(mesh, cfg.mass.density) if body.watertight and cfg.mass.method != "exact" else props
     rotations, probabilities = stable_orientations(mesh, props.com)
-    points = sample_surface_points(mesh, cfg.num_points, cfg.oversample, seed=int(points_ss.generate_state(1)[0]))
     return dict(
-        task=task, instance=instance, spec=spec, props=props, exact=exact, notes=notes,
-        rotations=rotations, probabilities=probabilities, hull_mass=not prepared.watertight,
-        points=(points - props.com).astype(np.float32), sims_rng=np.random.default_rng(sims_ss),
+        task=task, instance=instance, spec=body.spec, props=props, exact=exact, notes=body.notes,
+        rotations=rotations, probabilities=probabilities, hull_mass=not body.watertight,
+        points=body.surface_points(cfg.num_points, cfg.oversample, int(points_ss.generate_state(1)[0])),
+        sims_rng=np.random.default_rng(sims_ss),
     )
 
 

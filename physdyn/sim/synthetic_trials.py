@@ -24,7 +24,7 @@ import trimesh
 from physdyn.config import MassConfig, PhysicsConfig
 from physdyn.errors import PhysdynError, ShapeError
 from physdyn.geometry.rotations import canonical_quat, continuous_quat, matrix_to_quat, quat_conjugate, quat_multiply, quat_to_matrix, rotvec_to_quat
-from physdyn.sim.body import RigidBodySpec
+from physdyn.sim.body import RigidBodySpec, body_surface_points, rigid_body
 
 CSV_HEADER = "time,x,y,z,qx,qy,qz,qw"
 PAPER_BOX = (0.073, 0.060, 0.170)  # m, the supplement's cardboard box
@@ -57,10 +57,7 @@ class TrackedShape:
 
     def surface_points(self, num_points: int = 1024, oversample: int = 3, seed: int = 0) -> np.ndarray:
         """(num_points, 3) float32 surface points in the body frame, sampled as the simulator samples them."""
-        from physdyn.geometry.sampling import sample_surface_points
-
-        points = sample_surface_points(self.mesh, num_points, oversample, seed=seed)
-        return (points - self.com_mesh).astype(np.float32)
+        return body_surface_points(self.mesh, self.spec, num_points, oversample, seed)
 
 
 def parse_box(text: str) -> tuple[float, float, float]:
@@ -81,8 +78,7 @@ def tracked_shape(box: str | None = None, mesh_path: str | None = None, scale: f
                   density: float = DEFAULT_DENSITY) -> TrackedShape:
     """The tracked shape from ``--shape box:W,D,H`` (a box centred at its mesh origin, edges along the mesh
     axes) or ``--mesh FILE`` (read in its own frame, times ``scale``). Mass at uniform ``density``."""
-    from physdyn.geometry.mass import solid_mass_properties
-    from physdyn.geometry.mesh_io import load_mesh, prepare_mesh
+    from physdyn.geometry.mesh_io import load_mesh
 
     if (box is None) == (mesh_path is None):
         raise ShapeError("give the tracked shape with exactly one of --shape box:W,D,H or --mesh FILE")
@@ -92,10 +88,9 @@ def tracked_shape(box: str | None = None, mesh_path: str | None = None, scale: f
     else:
         mesh = load_mesh(mesh_path, scale)
         source = str(mesh_path) + (f" x{scale:g}" if scale != 1.0 else "")
-    prepared = prepare_mesh(mesh, source)
-    props = solid_mass_properties(prepared.mesh, prepared.watertight, density, source)
-    spec = RigidBodySpec.from_mesh(prepared.mesh, props)
-    return TrackedShape(mesh=prepared.mesh, source=source, spec=spec, com_mesh=spec.com_mesh, volume=float(props.volume))
+    body = rigid_body(mesh, source, density)
+    return TrackedShape(mesh=body.mesh, source=source, spec=body.spec, com_mesh=body.spec.com_mesh,
+                        volume=float(body.props.volume))
 
 
 # --------------------------------------------------------------------------------------------------
