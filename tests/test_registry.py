@@ -7,6 +7,7 @@ alone. Plugins are simulated without installing anything: a ``<name>-<version>.d
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import subprocess
 import sys
@@ -331,3 +332,17 @@ def test_components_warns_about_a_broken_plugin_and_goes_on(broken_plugin_env, t
     assert "broken on purpose" in proc.stderr
     assert "shattered" not in proc.stdout  # skipped, not listed
     assert "encoders (entry-point group physdyn.encoders)" in proc.stdout
+
+
+def test_components_options_lists_each_components_settings_and_defaults(capsys):
+    from physdyn.cli import main
+    from physdyn.models.predictors.lstm import LSTMPredictor
+
+    assert main(["components", "--options"]) == 0
+    out = capsys.readouterr().out
+    lstm = out[out.index("  lstm "):out.index("  mlp ")]
+    for f in dataclasses.fields(LSTMPredictor.Config):  # every setting, with the default the code has
+        assert f"{f.name}: " in lstm and f"= {f.default!r}" in lstm
+    head = out[out.index("  no_topple "):]
+    assert "(no settings)" in head.splitlines()[1]
+    assert main(["components"]) == 0 and "forget_bias" not in capsys.readouterr().out  # only when asked
