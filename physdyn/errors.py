@@ -23,3 +23,7 @@ class PredictionError(PhysdynError):
 
 class PredictionWarning(UserWarning):
     """Something the user should know about a prediction that still runs (e.g. an open mesh)."""
+
+
+class CheckpointError(PhysdynError):
+    """A checkpoint path that is missing or does not hold a physdyn DynamicsModel."""

@@ -38,6 +38,7 @@ def run(args: argparse.Namespace) -> int:
     from physdyn.errors import PhysdynError
     from physdyn.eval.baselines import checkpoint_and_store
     from physdyn.files import atomic_output, check_writable
+    from physdyn.models.checkpoint_file import read_checkpoint
     from physdyn.models.topple_classifier import fit_topple_classifier
 
     out = Path(args.out)
@@ -54,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
         raise PhysdynError(f"the model was trained at {model.data_info['rate_hz']:g} Hz and {data} is recorded at "
                            f"{store.rate_hz:g} Hz; fit on a store of the model's rate")
     classifier, report = fit_topple_classifier(store, args.num_points, friction=model.prior_friction)
-    raw = torch.load(args.checkpoint, map_location="cpu", weights_only=False)
+    raw = read_checkpoint(args.checkpoint)
     raw["topple_classifier"] = classifier.to_dict()
     out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_output(out, suffix=".ckpt") as tmp:

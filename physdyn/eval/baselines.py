@@ -18,14 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from physdyn.errors import PhysdynError
+from physdyn.errors import CheckpointError, PhysdynError
 from physdyn.eval.rollout import RolloutResult
 
 GRAVITY = 9.81
-
-
-class CheckpointError(PhysdynError):
-    """A checkpoint path that is missing or does not hold a physdyn DynamicsModel."""
 
 
 def _result(p: np.ndarray, q: np.ndarray, v: np.ndarray, w: np.ndarray) -> RolloutResult:
@@ -124,21 +120,11 @@ BASELINES: dict[str, type[Baseline]] = {"stay_put": StayPut, "coulomb_slide": Co
 
 def load_checkpoint(path: str | Path):
     """A ``DynamicsModel`` from a checkpoint of `physdyn fit`; a one-line ``CheckpointError`` otherwise."""
-    import torch
-
+    from physdyn.models.checkpoint_file import read_checkpoint  # torch: not for the numpy baselines
     from physdyn.models.dynamics_module import DynamicsModel
 
     path = Path(path)
-    if not path.is_file():
-        raise CheckpointError(f"no checkpoint file {path}; train one with `physdyn fit` (it writes best.ckpt and last.ckpt)")
-    try:
-        raw = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as exc:
-        raise CheckpointError(f"{path} is not a PyTorch checkpoint ({type(exc).__name__}); pass a .ckpt written by `physdyn fit`") from None
-    hparams = raw.get("hyper_parameters") if isinstance(raw, dict) else None
-    if not isinstance(hparams, dict) or not {"config", "normalization"} <= set(hparams) or "state_dict" not in raw:
-        raise CheckpointError(f"{path} is not a physdyn DynamicsModel checkpoint (no physdyn config, normalisation and "
-                              f"weights); pass best.ckpt or last.ckpt from a `physdyn fit` run")
+    read_checkpoint(path)  # a one-line error for a missing, unreadable or foreign file
     try:
         model = DynamicsModel.load_from_checkpoint(path, map_location="cpu")
     except PhysdynError:

@@ -20,6 +20,7 @@ import yaml
 from physdyn.config import ExperimentConfig, config_from_dict, to_dict
 from physdyn.errors import ConfigError, PhysdynError
 from physdyn.files import atomic_output
+from physdyn.models.checkpoint_file import read_checkpoint
 from physdyn.models.training import validate_experiment_config
 
 # What DynamicsModel.load_from_checkpoint needs; the optimiser, loops and callbacks are only for resuming.
@@ -49,13 +50,9 @@ def apply_settings(hyper_parameters: dict, settings: list[str]) -> dict:
 
 def export_checkpoint(src: str | Path, dst: str | Path, overwrite: bool = False, settings: list[str] | None = None) -> Path:
     src, dst = Path(src), Path(dst)
-    if not src.is_file():
-        raise PhysdynError(f"no checkpoint at {src}; train one with `physdyn fit`")
+    checkpoint = read_checkpoint(src)
     if dst.exists() and not overwrite:
         raise PhysdynError(f"{dst} exists; pass --overwrite to replace it")
-    checkpoint = torch.load(src, map_location="cpu", weights_only=False)
-    if "state_dict" not in checkpoint or "hyper_parameters" not in checkpoint:
-        raise PhysdynError(f"{src} is not a `physdyn fit` checkpoint")
     slim = {key: checkpoint[key] for key in KEEP if key in checkpoint}
     if settings:
         slim["hyper_parameters"] = apply_settings(slim["hyper_parameters"], settings)

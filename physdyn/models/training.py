@@ -19,6 +19,7 @@ import torch
 
 from physdyn.config import ExperimentConfig, load_config
 from physdyn.data.normalization import NORMALIZATION_MODES
+from physdyn.models.checkpoint_file import read_checkpoint
 from physdyn.models.losses import LOSS_KINDS
 from physdyn.models.priors import CONTACT_INERTIA, PRIORS, SHAPE_PRIORS
 from physdyn.data.store import StoreData
@@ -88,16 +89,6 @@ def load_experiment_config(path: str | Path | None, overrides: list[str] | None 
     return validate_experiment_config(load_config(ExperimentConfig, path, overrides))
 
 
-def _read_checkpoint(path: Path) -> dict:
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as exc:
-        raise PhysdynError(f"cannot read checkpoint {path}: {type(exc).__name__}: {exc}") from None
-    if not isinstance(ckpt, dict):
-        raise PhysdynError(f"{path} is not a checkpoint of `physdyn fit`; pass a .ckpt it wrote")
-    return ckpt
-
-
 def fit(config: ExperimentConfig, resume: bool = False, overwrite: bool = False, store: StoreData | None = None) -> FitResult:
     """Train a DynamicsModel as ``config`` says; see the module docstring for the run directory.
 
@@ -129,7 +120,7 @@ def fit(config: ExperimentConfig, resume: bool = False, overwrite: bool = False,
     normalization = datamodule.normalization
     resumed_step = None
     if ckpt_path is not None:  # keep the scales the run started with
-        saved_ckpt = _read_checkpoint(ckpt_path)
+        saved_ckpt = read_checkpoint(ckpt_path)
         resumed_step = int(saved_ckpt.get("global_step", 0)) if resume else None
         saved = saved_ckpt.get("hyper_parameters", {}).get("normalization")
         if saved:
