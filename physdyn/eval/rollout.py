@@ -152,7 +152,7 @@ def rollout(
     B = q0.shape[0]
     warm_v, warm_w = _warm_start(warm_start_velocities, B)
     K = warm_v.shape[1]
-    points = world_oriented_points(_numpy(points_body), q0).astype(np.float32)
+    points = _oriented(_numpy(points_body), q0).astype(np.float32)
     if hasattr(model, "rollout_changes") and not stepwise:
         kwargs = {} if spin_inertia is None else {"spin_inertia": spin_inertia}
         if getattr(model, "topple_classifier", None) is not None:
@@ -177,10 +177,22 @@ def rollout(
         probability = np.concatenate([np.zeros((B, 1)), np.stack(topple, axis=1) if topple else np.zeros((B, 0))], axis=1)
     classifier = getattr(model, "topple_classifier", None)
     if classifier is not None:
-        cloud = points if topple_points_body is None else world_oriented_points(_numpy(topple_points_body), q0)
+        cloud = points if topple_points_body is None else _oriented(_numpy(topple_points_body), q0)
         probability = classifier.predict(cloud, _numpy(lin_vel0).reshape(B, 3), _numpy(ang_vel0).reshape(B, 3), steps)
     return RolloutResult(**states, topple_probability=probability, **deltas, fed_linear_velocity=fed_v,
                          fed_angular_velocity=fed_w)
+
+
+def _oriented(points_body: np.ndarray, q0: np.ndarray) -> np.ndarray:
+    """``world_oriented_points`` once per distinct cloud and orientation: a batch of requests often pushes
+    a few objects, each in one pose, many times (the same numbers)."""
+    keys = [P.tobytes() + q.tobytes() for P, q in zip(points_body, q0)]
+    first: dict[bytes, int] = {}
+    index = np.array([first.setdefault(k, len(first)) for k in keys])
+    if len(first) == len(keys):
+        return world_oriented_points(points_body, q0)
+    rows = np.unique(index, return_index=True)[1]  # the first request of each distinct one, in order
+    return world_oriented_points(points_body[rows], q0[rows])[index]
 
 
 def _stepwise(model: Any, points: np.ndarray, lin_vel0: Any, ang_vel0: Any, steps: int, warm_v: np.ndarray,

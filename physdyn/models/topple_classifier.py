@@ -39,17 +39,20 @@ FEATURE_NAMES = (
 )
 
 
-def _ray_to_hull(equations: np.ndarray, direction: np.ndarray) -> float:
-    """Distance from the origin to the hull's boundary along the unit ``direction`` (2D)."""
-    normal, offset = equations[:, :2], equations[:, 2]
-    along = normal @ direction
+def _rays_to_hull(equations: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """Distance from the origin to each row's hull boundary along its unit direction (2D): equations
+    (n, E, 3) (rows padded with zeros, which face nowhere), directions (n, 2) -> (n,); 0 where no edge
+    faces the direction (no hull: a line or point contact)."""
+    along = np.einsum("nk,nek->ne", directions, equations[..., :2])
     ok = along > 1e-12
-    return float(np.min(-offset[ok] / along[ok])) if ok.any() else 0.0
+    distance = np.where(ok, -equations[..., 2] / np.where(ok, along, 1.0), np.inf).min(axis=1)
+    return np.where(ok.any(axis=1), distance, 0.0)
 
 
-def _unit(x: np.ndarray) -> np.ndarray:
-    n = float(np.linalg.norm(x))
-    return x / n if n > 1e-9 else np.array([1.0, 0.0])
+def _units(x: np.ndarray) -> np.ndarray:
+    """Rows of x (n, 2) scaled to unit length; (1, 0) for a row of (near) zero length."""
+    n = np.linalg.norm(x, axis=1, keepdims=True)
+    return np.where(n > 1e-9, x / np.where(n > 1e-9, n, 1.0), np.array([1.0, 0.0]))
 
 
 def _cloud_features(P: np.ndarray) -> dict[str, Any]:
@@ -79,42 +82,47 @@ def topple_features(points: np.ndarray, linear_velocity: np.ndarray, angular_vel
                     friction: float = 0.25) -> np.ndarray:
     """points (B, N, 3): the body's cloud in its step-0 world orientation, centre of mass at the origin;
     velocities (B, 3) at step 0, world frame -> (B, len(FEATURE_NAMES)) float64. A cloud repeated in the
-    batch (one mesh pushed many times) is measured once."""
+    batch (one mesh pushed many times) is measured once, and its pushes are taken together."""
     points = np.asarray(points, np.float64)
     v0 = np.asarray(linear_velocity, np.float64).reshape(-1, 3)
     w0 = np.asarray(angular_velocity, np.float64).reshape(-1, 3)
-    rows = np.empty((len(points), len(FEATURE_NAMES)))
-    clouds: dict[bytes, dict[str, Any]] = {}
-    for b, P in enumerate(points):
-        key = P.tobytes()
-        if key not in clouds:
-            clouds[key] = _cloud_features(P)
-        c = clouds[key]
-        h, eq, edge_min, inertia = c["h"], c["eq"], c["edge_min"], c["inertia"]
-        vxy, wxy = v0[b, :2], w0[b, :2]
-        travel = _unit(vxy)
-        tip = _unit(np.array([wxy[1], -wxy[0]]))  # where the top goes under the horizontal spin
-        edge = (lambda d: _ray_to_hull(eq, d)) if eq is not None else (lambda d: 0.0)
-        e_travel, e_back, e_tip = edge(travel), edge(-travel), edge(tip)
-        tip_energy = lambda e: GRAVITY * (np.sqrt(h * h + e * e) - h)  # noqa: E731
-        w_xy = float(np.linalg.norm(wxy))
-        axis = np.array([wxy[0], wxy[1], 0.0]) / w_xy if w_xy > 1e-9 else np.array([1.0, 0.0, 0.0])
-        tilt_inertia = axis @ inertia @ axis + h * h + e_tip * e_tip  # about the tipping edge
-        kinetic_tilt = 0.5 * tilt_inertia * w_xy ** 2
-        kinetic_linear = 0.5 * float(v0[b] @ v0[b])
-        kinetic_rotation = 0.5 * float(w0[b] @ inertia @ w0[b])
-        e_tip_energy, e_travel_energy = tip_energy(e_tip), tip_energy(e_travel)
-        extent = c["extent"]
-        rows[b] = (
-            float(np.linalg.norm(vxy)), v0[b, 2], w_xy, w0[b, 2], float(np.array([wxy[1], -wxy[0]]) @ travel), h, c["area"],
-            c["radius"], edge_min, e_travel, e_back, e_tip, extent[0], extent[1], extent[2],
-            float(np.sqrt(np.trace(c["second"]))), inertia[0, 0], inertia[1, 1], inertia[2, 2],
-            h / max(edge_min, 1e-4), h / max(e_travel, 1e-4), h / max(e_tip, 1e-4),
-            e_travel_energy, e_tip_energy, tip_energy(edge_min), kinetic_linear, kinetic_rotation, kinetic_tilt,
-            kinetic_tilt / max(e_tip_energy, 1e-6), np.log(kinetic_tilt + 1e-6) - np.log(e_tip_energy + 1e-6),
-            (kinetic_linear + kinetic_rotation) / max(e_travel_energy, 1e-6), friction * h - e_travel,
-        )
-    return rows
+    groups: dict[bytes, int] = {}
+    which = np.array([groups.setdefault(P.tobytes(), len(groups)) for P in points], dtype=np.int64)
+    firsts = np.unique(which, return_index=True)[1]
+    clouds = [_cloud_features(points[i]) for i in firsts]
+    widest = max([0 if c["eq"] is None else len(c["eq"]) for c in clouds] + [1])
+    hulls = np.zeros((len(clouds), widest, 3))
+    for g, c in enumerate(clouds):
+        if c["eq"] is not None:
+            hulls[g, : len(c["eq"])] = c["eq"]
+    per_cloud = lambda key: np.array([c[key] for c in clouds], np.float64)[which]  # noqa: E731
+    h, edge_min, area, radius = per_cloud("h"), per_cloud("edge_min"), per_cloud("area"), per_cloud("radius")
+    extent, second, inertia = per_cloud("extent"), per_cloud("second"), per_cloud("inertia")
+    eq = hulls[which]
+    vxy, wxy = v0[:, :2], w0[:, :2]
+    travel = _units(vxy)
+    tipping = np.stack([wxy[:, 1], -wxy[:, 0]], axis=1)
+    tip = _units(tipping)  # where the top goes under the horizontal spin
+    e_travel, e_back, e_tip = _rays_to_hull(eq, travel), _rays_to_hull(eq, -travel), _rays_to_hull(eq, tip)
+    tip_energy = lambda e: GRAVITY * (np.sqrt(h * h + e * e) - h)  # noqa: E731
+    w_xy = np.linalg.norm(wxy, axis=1)
+    spinning = w_xy > 1e-9
+    axis = np.where(spinning[:, None], np.concatenate([wxy, np.zeros((len(w0), 1))], axis=1)
+                    / np.where(spinning, w_xy, 1.0)[:, None], np.array([1.0, 0.0, 0.0]))
+    tilt_inertia = np.einsum("ni,nij,nj->n", axis, inertia, axis) + h * h + e_tip * e_tip  # about the tipping edge
+    kinetic_tilt = 0.5 * tilt_inertia * w_xy ** 2
+    kinetic_linear = 0.5 * (v0 * v0).sum(axis=1)
+    kinetic_rotation = 0.5 * np.einsum("ni,nij,nj->n", w0, inertia, w0)
+    e_tip_energy, e_travel_energy = tip_energy(e_tip), tip_energy(e_travel)
+    return np.stack([
+        np.linalg.norm(vxy, axis=1), v0[:, 2], w_xy, w0[:, 2], (tipping * travel).sum(axis=1), h, area, radius,
+        edge_min, e_travel, e_back, e_tip, extent[:, 0], extent[:, 1], extent[:, 2],
+        np.sqrt(np.trace(second, axis1=1, axis2=2)), inertia[:, 0, 0], inertia[:, 1, 1], inertia[:, 2, 2],
+        h / np.maximum(edge_min, 1e-4), h / np.maximum(e_travel, 1e-4), h / np.maximum(e_tip, 1e-4),
+        e_travel_energy, e_tip_energy, tip_energy(edge_min), kinetic_linear, kinetic_rotation, kinetic_tilt,
+        kinetic_tilt / np.maximum(e_tip_energy, 1e-6), np.log(kinetic_tilt + 1e-6) - np.log(e_tip_energy + 1e-6),
+        (kinetic_linear + kinetic_rotation) / np.maximum(e_travel_energy, 1e-6), friction * h - e_travel,
+    ], axis=1)
 
 
 @dataclass

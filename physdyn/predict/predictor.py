@@ -189,11 +189,17 @@ class Predictor:
         else:
             q0 = np.stack([check_orientation(q) for q in _per_request(orientation_xyzw, R, "orientation (x, y, z, w)", 4)])
         bodies = self._bodies(meshes, scales)
-        p0 = np.stack([initial_pose(body.spec, q) for body, q in zip(bodies, q0)])
+        # Per distinct body and orientation (a batch often pushes a few objects many times): the resting
+        # pose and the mesh's own spin inertia, for a contact prior that takes it (model.contact_inertia=body).
+        posed: dict[tuple[int, bytes], tuple[np.ndarray, float]] = {}
+        for body, q in zip(bodies, q0):
+            key = (id(body), q.tobytes())
+            if key not in posed:
+                posed[key] = (initial_pose(body.spec, q),
+                              float(vertical_inertia(body.spec.inertia_diag, body.spec.principal_axes, body.spec.mass, q)))
+        p0 = np.stack([posed[id(body), q.tobytes()][0] for body, q in zip(bodies, q0)])
+        spin_inertia = np.array([posed[id(body), q.tobytes()][1] for body, q in zip(bodies, q0)])
         points = np.stack([body.points_body(self.num_points) for body in bodies])
-        # the mesh's own mass properties, for a contact prior that takes them (model.contact_inertia=body)
-        spin_inertia = np.array([vertical_inertia(body.spec.inertia_diag, body.spec.principal_axes, body.spec.mass, q)
-                                 for body, q in zip(bodies, q0)])
         classifier = getattr(self.model, "topple_classifier", None)
         topple_points = None if classifier is None else np.stack(
             [body.points_body(classifier.num_points or DEFAULT_NUM_POINTS) for body in bodies])

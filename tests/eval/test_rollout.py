@@ -251,5 +251,7 @@ def test_fit_topple_puts_a_classifier_in_the_checkpoint_and_roll_outs_use_it(tin
     np.testing.assert_allclose(kept["predicted"].topple_probability, clf.per_step(p, kept["truth"]["valid"].shape[1]), atol=1e-12)
     decided = M.predicted_topple(kept["predicted"].topple_probability, kept["truth"]["state_valid"])
     assert result["topple"]["accuracy"] == pytest.approx(np.mean(decided == store.toppled[sims].astype(bool)))
-    # the trajectories themselves are the model's, unchanged
-    np.testing.assert_allclose(kept["predicted"].com_position, evaluate(plain, store, "test", keep_trajectories=True)["trajectories"]["predicted"].com_position)
+    # the trajectories themselves are the model's, unchanged (to float32 rounding: without the head's
+    # probabilities the roll-out runs the network on the moving sequences only, smaller matrix products)
+    np.testing.assert_allclose(kept["predicted"].com_position, evaluate(plain, store, "test", keep_trajectories=True)["trajectories"]["predicted"].com_position,
+                               rtol=1e-5, atol=1e-7)

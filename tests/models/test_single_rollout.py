@@ -148,3 +148,33 @@ def test_steps_below_the_rest_gate_queue_the_lstm_and_give_the_same_roll_out(qui
         resting = (np.linalg.norm(fed[:, :2], axis=1) < 0.1) & (np.linalg.norm(fed[:, 3:], axis=1) < 1.0)
         assert resting[0] if warm_v is not None else resting[-5:].all()  # the gate did close where meant
         assert not resting[1:].all()
+
+
+def test_a_batch_runs_the_network_on_moving_sequences_only_and_gives_the_same_roll_out(quickstart_config, store):
+    # The batched torch loop without topple probabilities: sequences below the rest gate queue their input
+    # (one at rest at step 0 and pushed at step 1 takes its queue then), the network runs on the rest only.
+    model = _model(quickstart_config, store, RECIPES[0])
+    with torch.no_grad():
+        model.head.linear.weight.mul_(0.05)
+        model.head.linear.bias.zero_()
+    sims = select_sequences(store, "test")[:3]
+    truth = gather_truth(store, sims)
+    points = world_oriented_points(store.points[store.shape_id[sims]], truth["orientation_xyzw"][:, 0]).astype(np.float32)
+    v0, w0 = truth["linear_velocity"][:, 0].copy(), truth["angular_velocity"][:, 0].copy()
+    v0[0], w0[0] = 0.0, 0.0  # the first one rests until the warm start pushes it
+    warm_v, warm_w = torch.as_tensor(truth["linear_velocity"][:, 1:3]), torch.as_tensor(truth["angular_velocity"][:, 1:3])
+    rows_seen = []
+    hook = model.predictor.register_forward_hook(lambda module, args, out: rows_seen.append(tuple(args[0].shape[:2])))
+    try:
+        with torch.inference_mode():
+            skipping = model._rollout_changes(points, v0, w0, 40, warm_v, warm_w, topple=False)
+            calls = list(rows_seen)
+            every = model._rollout_changes(points, v0, w0, 40, warm_v, warm_w, topple=True)
+    finally:
+        hook.remove()
+    assert skipping["topple_probability"] is None and every["topple_probability"] is not None
+    np.testing.assert_allclose(skipping["changes"].numpy(), every["changes"].numpy(), rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(skipping["fed"].numpy(), every["fed"].numpy(), rtol=1e-5, atol=1e-5)
+    # step 0 runs the two moving ones; at step 1 the pushed one first takes its queued step 0, then all three
+    assert calls[:3] == [(2, 1), (1, 1), (3, 1)]
+    assert len(calls) < 40 and sum(b for b, _ in calls) < 3 * 40 / 2  # steps with all at rest run nothing

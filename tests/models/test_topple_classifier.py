@@ -31,6 +31,21 @@ def test_footprint_and_tipping_features_of_a_box_by_hand():
     assert on_edge["foot_area"] < 0.05 * f["foot_area"] and on_edge["edge_min"] < 5e-3  # a 5 mm strip
 
 
+def test_a_batch_of_pushes_over_a_few_clouds_gives_each_push_its_own_features():
+    # Repeated clouds are measured once and their pushes taken together: the same rows as one at a time.
+    rng = np.random.default_rng(0)
+    box = sample_surface_points(trimesh.creation.box((0.2, 0.3, 0.4)), 512, 3, seed=0)
+    cylinder = sample_surface_points(trimesh.creation.cylinder(0.05, 0.3), 512, 3, seed=1)
+    edge = box @ trimesh.transformations.rotation_matrix(np.pi / 4, [0, 1, 0])[:3, :3].T  # no footprint area
+    clouds = np.stack([box, cylinder, edge, box, cylinder, edge, box])
+    v, w = rng.normal(size=(7, 3)), rng.normal(size=(7, 3))
+    w[3] = 0.0  # no tilt spin: the tipping direction falls back to +x
+    batch = topple_features(clouds, v, w)
+    alone = np.concatenate([topple_features(clouds[i : i + 1], v[i : i + 1], w[i : i + 1]) for i in range(7)])
+    np.testing.assert_allclose(batch, alone, rtol=1e-12, atol=1e-12)
+    assert len(np.unique(batch[:, FEATURE_NAMES.index("foot_area")])) == 3 and np.isfinite(batch).all()
+
+
 def test_logistic_regression_and_threshold_recover_a_known_rule():
     rng = np.random.default_rng(0)
     x = rng.normal(size=(2000, 3))
