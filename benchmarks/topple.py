@@ -5,7 +5,9 @@
 Rows: always "no"; the topple head's rule (any step's probability >= 0.5) and the same with the threshold
 chosen on validation; one physics ratio (tilt kinetic energy / energy to tip over the edge the top tips
 towards) with its threshold chosen on validation; the logistic regression of ``physdyn fit-topple`` fitted
-on the quickstart store and on the large store; and the classifier shipped in the bundled checkpoint.
+on the quickstart store, the large store and the store of five times the shapes; with ``--families``
+gradient-boosted trees, a random forest and an MLP on the same features (scikit-learn needed); and the
+classifier shipped in the bundled checkpoint.
 About a minute on 2 CPU cores (the roll-outs of the validation and test splits dominate).
 """
 
@@ -29,6 +31,10 @@ def main() -> None:
     parser.add_argument("--checkpoint", default=str(BUNDLED_CHECKPOINT))
     parser.add_argument("--data", default="data/quickstart.zarr")
     parser.add_argument("--large", default="data/quickstart_large.zarr", help="the same shapes with more pushes")
+    parser.add_argument("--shapes", default="data/quickstart_shapes.zarr",
+                        help="five times the shapes, other ones (configs/data/quickstart_shapes.yaml)")
+    parser.add_argument("--families", action="store_true",
+                        help="also fit other classifier families on the large store's features (needs scikit-learn)")
     args = parser.parse_args()
     started = time.time()
     store = load_store(args.data)
@@ -55,19 +61,49 @@ def main() -> None:
         large = load_store(args.large)
         clf_large, _ = fit_topple_classifier(large, None, model.prior_friction)
         rows.append(("fit-topple on the large store", clf_large.probability(x["test"]) >= 0.5))
+        if args.families:
+            rows += _families(large, x, y)
     except Exception as exc:  # noqa: BLE001 - the large store is optional
         print(f"(no large-store row: {exc})")
+    try:
+        shapes = load_store(args.shapes)
+        clf_shapes, _ = fit_topple_classifier(shapes, None, model.prior_friction)
+        rows.append(("fit-topple on the five-times-the-shapes store", clf_shapes.probability(x["test"]) >= 0.5))
+    except Exception as exc:  # noqa: BLE001 - the shapes store is optional
+        print(f"(no shapes-store row: {exc})")
     if shipped is not None:
         model.topple_classifier = shipped
         result = evaluate(model, store, "test")
         print(f"shipped classifier through the roll-out: test accuracy {result['topple']['accuracy']:.3f}")
         rows.append(("shipped classifier (features on this cloud)", shipped.probability(x["test"]) >= 0.5))
     print(f"\n{args.data} test split: {len(test)} pushes, {int(y['test'].sum())} topple\n")
-    print(f"{'predictor':<48} {'accuracy':>8} {'caught':>7} {'false alarms':>13}")
+    print(f"{'predictor':<58} {'accuracy':>8} {'caught':>7} {'false alarms':>13}")
     for name, decided in rows:
         c = M.topple_classification(decided, y["test"])
-        print(f"{name:<48} {c['accuracy']:8.3f} {int(c['tp']):7d} {int(c['fp']):13d}")
+        print(f"{name:<58} {c['accuracy']:8.3f} {int(c['tp']):7d} {int(c['fp']):13d}")
     print(f"\n{time.time() - started:.0f} s")
+
+
+def _families(large, x: dict, y: dict) -> list:
+    """Other classifiers on the same features (fitted on the large store's training split, clipped and
+    standardised as fit-topple does, threshold chosen on validation): is the logistic regression or are
+    the features the limit? scikit-learn is a benchmark-only dependency (pip install scikit-learn)."""
+    from sklearn.ensemble import HistGradientBoostingClassifier, RandomForestClassifier
+    from sklearn.neural_network import MLPClassifier
+
+    train = np.flatnonzero(large.split == 0)
+    x_train, y_train = store_features(large, train, None, 0.25, 0), large.toppled[train].astype(int)
+    low, high = np.percentile(x_train, 1, axis=0), np.percentile(x_train, 99, axis=0)
+    mean, std = np.clip(x_train, low, high).mean(axis=0), np.clip(x_train, low, high).std(axis=0) + 1e-9
+    z = lambda a: (np.clip(a, low, high) - mean) / std  # noqa: E731
+    rows = []
+    for name, clf in (("gradient-boosted trees", HistGradientBoostingClassifier(max_iter=500, learning_rate=0.05, random_state=0)),
+                      ("random forest, 300 trees", RandomForestClassifier(300, min_samples_leaf=2, random_state=0)),
+                      ("MLP 128-128", MLPClassifier((128, 128), alpha=1e-3, max_iter=400, early_stopping=True, random_state=0))):
+        clf.fit(z(x_train), y_train)
+        threshold = best_threshold(clf.predict_proba(z(x["val"]))[:, 1], y["val"])
+        rows.append((f"{name} on the large store's features", clf.predict_proba(z(x["test"]))[:, 1] >= threshold))
+    return rows
 
 
 if __name__ == "__main__":
