@@ -6,9 +6,14 @@ import contextlib
 import json
 import math
 import os
+import sys
 import tempfile
 from pathlib import Path
 from typing import Any, Iterator
+
+from tqdm import tqdm
+
+from physdyn.errors import PhysdynError
 
 
 @contextlib.contextmanager
@@ -36,7 +41,6 @@ def _umask() -> int:
 def check_writable(path: str | Path, what: str = "output") -> None:
     """Before long work: refuse an output whose place cannot be written (a parent that is a file, a folder
     without write permission), as a one-line ``PhysdynError`` naming the place."""
-    from physdyn.errors import PhysdynError
 
     path = Path(path).expanduser()
     existing = path
@@ -70,9 +74,6 @@ class _PlainLines:
 
 def progress_bar(total: int, desc: str, unit: str, enabled: bool = True, initial: int = 0, stream=None):
     """A tqdm bar on a terminal; elsewhere one plain line every 30 s (and at the end)."""
-    import sys
-
-    from tqdm import tqdm
 
     stream = stream or sys.stderr
     terminal = hasattr(stream, "isatty") and stream.isatty()

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import dataclasses
 
+# Handlers import the library themselves, so `physdyn --help` stays light (see physdyn/cli/__init__.py).
+
 ORDER = 90
 
 

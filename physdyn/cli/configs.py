@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+# Handlers import the library themselves, so `physdyn --help` stays light (see physdyn/cli/__init__.py).
+
 ORDER = 95
 
 

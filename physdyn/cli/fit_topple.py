@@ -3,6 +3,11 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
+
+from physdyn.errors import PhysdynError
+
+# Handlers import the library themselves, so `physdyn --help` stays light (see physdyn/cli/__init__.py).
 
 ORDER = 31
 
@@ -30,12 +35,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
     import torch
 
     from physdyn.data.store import load_store
-    from physdyn.errors import PhysdynError
     from physdyn.eval.baselines import checkpoint_and_store
     from physdyn.files import atomic_output, check_writable
     from physdyn.models.checkpoint_file import read_checkpoint

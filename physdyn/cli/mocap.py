@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import argparse
 
+from physdyn.errors import PhysdynError
+
+# Handlers import the library themselves, so `physdyn --help` stays light (see physdyn/cli/__init__.py).
+
 ORDER = 15
 
 
@@ -63,7 +67,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run_import(args: argparse.Namespace) -> int:
     from physdyn.data.mocap_import import ImportSettings, import_mocap
-    from physdyn.errors import PhysdynError
     from physdyn.sim.synthetic_trials import tracked_shape
 
     if args.rate <= 0 or args.min_frames < 1:

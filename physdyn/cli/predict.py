@@ -3,7 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
+import warnings
+from pathlib import Path
+
+from physdyn.errors import PhysdynError
+
+# Handlers import the library themselves, so `physdyn --help` stays light (see physdyn/cli/__init__.py).
 
 ORDER = 40
 
@@ -84,8 +91,6 @@ def _warnings(notes: list, prefix: str = "") -> None:
 
 
 def run_one(args: argparse.Namespace) -> int:
-    import warnings
-
     from physdyn.predict.body import prepare_body
     from physdyn.predict.prediction_files import check_output_path, write_prediction
     from physdyn.predict.predictor import as_vector, check_orientation, check_seconds, load_predictor, summary
@@ -123,10 +128,7 @@ def run_one(args: argparse.Namespace) -> int:
 def run_batch(args: argparse.Namespace) -> int:
     """Three passes: read and check every line (a bad line is reported and skipped), roll the good ones out
     together (``Predictor.predict_many``: one batch, meshes prepared once), write each line's files."""
-    import warnings
-    from pathlib import Path
 
-    from physdyn.errors import PhysdynError
     from physdyn.predict.prediction_files import write_prediction
     from physdyn.predict.predictor import load_predictor
 
@@ -194,9 +196,6 @@ def run_batch(args: argparse.Namespace) -> int:
 
 def _inside(folder, name: str, key: str, number: int):
     """``folder / name``, refusing a name that leads outside ``folder`` (``../x.json``, an absolute path)."""
-    from pathlib import Path
-
-    from physdyn.errors import PhysdynError
 
     path = (folder / name).resolve()
     if not path.is_relative_to(Path(folder).resolve()):
@@ -206,11 +205,7 @@ def _inside(folder, name: str, key: str, number: int):
 
 def _read_request(line: str, number: int, base, out_dir, args, bodies: dict) -> dict:
     """One JSONL line checked and its mesh prepared: everything ``predict_many`` and the writers need."""
-    import json
-    import warnings
-    from pathlib import Path
 
-    from physdyn.errors import PhysdynError
     from physdyn.predict.body import prepare_body
     from physdyn.predict.prediction_files import check_output_path
     from physdyn.predict.predictor import as_vector, check_orientation, check_seconds

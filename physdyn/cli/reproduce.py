@@ -3,6 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import shlex
+import sys
+
+from physdyn.errors import PhysdynError
+
+# Handlers import the library themselves, so `physdyn --help` stays light (see physdyn/cli/__init__.py).
 
 ORDER = 60
 
@@ -47,13 +53,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import shlex
-    import sys
-
     from physdyn.experiments.results_page import write_results
     from physdyn.experiments.runner import run_suite
-
-    from physdyn.errors import PhysdynError
 
     if args.workers is not None and args.workers < 1:
         raise PhysdynError(f"--workers must be at least 1, got {args.workers}")

@@ -5,6 +5,10 @@ from __future__ import annotations
 import argparse
 import os
 
+from physdyn.errors import ConfigError
+
+# Handlers import the library themselves, so `physdyn --help` stays light (see physdyn/cli/__init__.py).
+
 ORDER = 10
 
 
@@ -35,7 +39,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 def clamp_workers(workers: int, local: bool = True) -> int:
     """At least 1; for local processes at most the machine's cores (more only queue up and multiply
     memory), with a note. A Ray cluster may have more cores than this machine."""
-    from physdyn.errors import ConfigError
 
     if workers < 1:
         raise ConfigError(f"--workers must be at least 1, got {workers}")

@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from physdyn.data import SPLITS  # a constant of a package whose __init__ imports nothing heavy
+from physdyn.errors import PhysdynError
+
+# Handlers import the library themselves, so `physdyn --help` stays light (see physdyn/cli/__init__.py).
 
 ORDER = 40
 
@@ -37,9 +41,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import sys
-
-    from physdyn.errors import PhysdynError
     from physdyn.eval.baselines import checkpoint_and_store, load_checkpoint
     from physdyn.eval.evaluate import compare
     from physdyn.eval.report import VIEWER_FILE, check_report_target, write_report

@@ -3,7 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import shutil
+import webbrowser
 from pathlib import Path
+
+from physdyn.errors import PhysdynError
+
+# Handlers import the library themselves, so `physdyn --help` stays light (see physdyn/cli/__init__.py).
 
 ORDER = 55
 
@@ -41,8 +47,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from physdyn.errors import PhysdynError
-
     if args.checkpoint or args.sims:
         if args.source:
             raise PhysdynError("pass either SOURCE files or --checkpoint with --sims, not both")
@@ -54,23 +58,17 @@ def run(args: argparse.Namespace) -> int:
     else:
         page = _from_predictions(args)
     if args.open:
-        import webbrowser
-
         webbrowser.open(page.resolve().as_uri())
     return 0
 
 
 def _from_report(args: argparse.Namespace) -> Path:
-    from physdyn.errors import PhysdynError
-
     folder = Path(args.source[0])
     page = folder / "viewer.html"
     if not page.is_file():
         raise PhysdynError(f"{folder} holds no viewer.html; run `physdyn test ... --out {folder} --overwrite` to write one, "
                            "or pass prediction files")
     if args.out:
-        import shutil
-
         from physdyn.viz.viewer import check_viewer_path
 
         out = check_viewer_path(args.out, args.overwrite)
@@ -89,7 +87,6 @@ def _find_mesh(recorded: str, prediction: Path) -> Path | None:
 
 
 def _from_predictions(args: argparse.Namespace) -> Path:
-    from physdyn.errors import PhysdynError
     from physdyn.predict.prediction_files import read_prediction
     from physdyn.viz.viewer import check_viewer_path, scene_from_prediction, write_viewer
     from physdyn.geometry.mesh_io import load_mesh
@@ -128,7 +125,6 @@ def _from_store(args: argparse.Namespace) -> Path:
     import numpy as np
 
     from physdyn.data.store import load_store
-    from physdyn.errors import PhysdynError
     from physdyn.eval.baselines import checkpoint_and_store
     from physdyn.viz.store_scenes import rollout_scenes
     from physdyn.viz.viewer import check_viewer_path, write_viewer

@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from physdyn.data.store import StoreWriter, store_exists
 from physdyn.errors import PhysdynError, StoreError
 from physdyn.geometry.rotations import canonical_quat, continuous_quat, quat_to_matrix, world_delta_rotvec
 from physdyn.sim.synthetic_trials import CSV_HEADER, TrackedShape
@@ -332,7 +333,6 @@ def import_mocap(inputs: list[str | Path] | str | Path, out: str | Path, shape: 
                  settings: ImportSettings = ImportSettings(), overwrite: bool = False) -> ImportReport:
     """Import every trial into a new store at ``out``. Bad trials are skipped and listed in the report;
     if none is usable nothing is written. The store is complete only once everything is in it."""
-    from physdyn.data.store import StoreWriter, store_exists
 
     started = _time.time()
     if isinstance(inputs, (str, Path)):

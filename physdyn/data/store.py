@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable
 
+import fsspec
 import numpy as np
 import zarr
 
@@ -72,8 +73,6 @@ def _open(url: str | Path, mode: str) -> zarr.Group:
 
 def store_exists(url: str | Path) -> bool:
     if _is_url(str(url)):
-        import fsspec
-
         fs, path = fsspec.core.url_to_fs(str(url))
         return fs.exists(path)
     return Path(url).exists()
@@ -81,8 +80,6 @@ def store_exists(url: str | Path) -> bool:
 
 def remove_store(url: str | Path) -> None:
     if _is_url(str(url)):
-        import fsspec
-
         fs, path = fsspec.core.url_to_fs(str(url))
         if fs.exists(path):
             fs.rm(path, recursive=True)
@@ -202,7 +199,7 @@ class StoreWriter:
             if name in self.group:
                 del self.group[name]
         except Exception:  # unreadable metadata: remove the node's keys directly
-            from zarr.core.sync import sync
+            from zarr.core.sync import sync  # zarr's internal API, on this repair path only
 
             sync(self.group.store.delete_dir(name))
 

@@ -121,7 +121,7 @@ BASELINES: dict[str, type[Baseline]] = {"stay_put": StayPut, "coulomb_slide": Co
 def load_checkpoint(path: str | Path):
     """A ``DynamicsModel`` from a checkpoint of `physdyn fit`; a one-line ``CheckpointError`` otherwise."""
     from physdyn.models.checkpoint_file import read_checkpoint  # torch: not for the numpy baselines
-    from physdyn.models.dynamics_module import DynamicsModel
+    from physdyn.models.dynamics_module import DynamicsModel  # and Lightning
 
     path = Path(path)
     read_checkpoint(path)  # a one-line error for a missing, unreadable or foreign file

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from physdyn.errors import PhysdynError
-from physdyn.files import jsonable
+from physdyn.files import check_writable, jsonable
 
 from physdyn.eval.metrics import ERROR_KEYS
 
@@ -97,7 +97,7 @@ def fit_error_axes(axes: Any, tops: list[list[float]]) -> bool:
 def plot_error_vs_time(comparison: dict, path: Path, group: str = "non_toppling") -> None:
     """Median accumulated position and rotation error per step (interquartile band) of the model and the
     baselines, cut by ``curve_end`` (the cut is stated on the plot)."""
-    import matplotlib
+    import matplotlib  # heavy (~0.4 s): loaded when a plot is drawn
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -128,7 +128,7 @@ def plot_error_vs_time(comparison: dict, path: Path, group: str = "non_toppling"
 
 
 def plot_errors_per_category(comparison: dict, path: Path) -> None:
-    import matplotlib
+    import matplotlib  # heavy (~0.4 s): loaded when a plot is drawn
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -160,7 +160,6 @@ VIEWER_FILE = "viewer.html"  # written beside the report by `physdyn test` (phys
 def check_report_target(out_dir: str | Path, overwrite: bool = False) -> None:
     """Refuse to replace an earlier report unless asked, or a place that cannot be written: call before
     spending time on an evaluation."""
-    from physdyn.files import check_writable
 
     if Path(out_dir).is_file():
         raise PhysdynError(f"--out {out_dir} is a file; pass a folder for the report")

@@ -16,12 +16,23 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+import torch
+import zarr
+from omegaconf import OmegaConf
+
 from physdyn.config import to_dict
+from physdyn.data.simulated_store import generate_dataset
+from physdyn.data.store import load_store, store_exists
 from physdyn.errors import PhysdynError
+from physdyn.eval.baselines import load_checkpoint
+from physdyn.eval.evaluate import compare
+from physdyn.eval.report import write_report
 from physdyn.experiments.results_page import write_results
 from physdyn.experiments.suite import (MANIFEST, RUN_FILE, RunSpec, ScaleConfig, build_suite, data_config,
                                        experiment_config, load_scale, pretrain_config, run_dir, select_runs,
                                        store_path, utc_now)
+from physdyn.models.pretrain import pretrain
+from physdyn.models.training import fit
 
 @dataclass
 class RunOutcome:
@@ -40,8 +51,6 @@ def is_finished(out: Path, spec: RunSpec) -> bool:
 
 
 def _store_complete(path: Path) -> bool:
-    import zarr
-
     try:
         return bool(zarr.open_group(str(path), mode="r").attrs.get("complete"))
     except Exception:
@@ -49,8 +58,6 @@ def _store_complete(path: Path) -> bool:
 
 
 def hardware() -> dict[str, Any]:
-    import torch
-
     gpu = torch.cuda.get_device_name(0) if torch.cuda.is_available() else None
     return {"platform": platform.platform(), "python": platform.python_version(), "cpu_count": os.cpu_count(),
             "torch": torch.__version__, "gpu": gpu}
@@ -87,8 +94,6 @@ class SuiteRunner:
         self._stores: dict[str, Any] = {}
 
     def store(self, name: str):
-        from physdyn.data.store import load_store
-
         if name not in self._stores:
             self._stores[name] = load_store(str(store_path(self.out, name)))
         return self._stores[name]
@@ -114,9 +119,6 @@ class SuiteRunner:
         return outcomes
 
     def _run_data(self, spec: RunSpec) -> bool:
-        from physdyn.data.store import store_exists
-        from physdyn.data.simulated_store import generate_dataset
-
         cfg = data_config(self.scale, spec.short)
         path = store_path(self.out, spec.short)
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -129,8 +131,6 @@ class SuiteRunner:
         return resume
 
     def _run_pretrain(self, spec: RunSpec) -> bool:
-        from physdyn.models.pretrain import pretrain
-
         cfg = pretrain_config(self.scale, self.scale_file, spec, self.out)
         d = run_dir(self.out, spec)
         started_before = d.exists() and any(d.iterdir())
@@ -138,8 +138,6 @@ class SuiteRunner:
         return started_before
 
     def _run_train(self, spec: RunSpec) -> bool:
-        from physdyn.models.training import fit
-
         cfg = experiment_config(self.scale, self.scale_file, spec, self.out)
         d = run_dir(self.out, spec)
         resume = (d / "last.ckpt").is_file()
@@ -147,10 +145,6 @@ class SuiteRunner:
         return resume
 
     def _run_eval(self, spec: RunSpec) -> bool:
-        from physdyn.eval.baselines import load_checkpoint
-        from physdyn.eval.evaluate import compare
-        from physdyn.eval.report import write_report
-
         model = load_checkpoint(run_dir(self.out, RunSpec(f"train/{spec.model}", "train")) / "best.ckpt")
         model.eval()
         result = compare(model, self.store(spec.store), spec.baselines, split="test", warm_start=spec.warm_start,
@@ -168,8 +162,6 @@ class SuiteRunner:
 
 
 def _yaml(data: dict) -> str:
-    from omegaconf import OmegaConf
-
     return OmegaConf.to_yaml(OmegaConf.create(data))
 
 

@@ -229,7 +229,7 @@ def experiment_config(scale: ScaleConfig, scale_file: Path, spec: RunSpec, out: 
 
 
 def pretrain_config(scale: ScaleConfig, scale_file: Path, spec: RunSpec, out: Path):
-    from physdyn.models.pretrain import load_pretrain_config
+    from physdyn.models.pretrain import load_pretrain_config  # torch and Lightning, as above
 
     extra = [f"name={spec.short}", f"out_dir={run_dir(out, spec)}"]
     return load_pretrain_config(scale_file.parent / scale.pretrain_preset, list(scale.pretrain_overrides) + extra)

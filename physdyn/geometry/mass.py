@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import trimesh
+from physdyn.errors import ShapeError
 from physdyn.geometry.rotations import quat_to_matrix
 
 
@@ -103,7 +104,6 @@ def solid_mass_properties(mesh: trimesh.Trimesh, watertight: bool, density: floa
                           method: str = "exact", voxel_base_pitch: float = 0.025) -> MassProperties:
     """Mass properties of a prepared mesh as the simulator needs them: of the solid it bounds, or of its
     convex hull (exact) when it bounds none. A shape without a positive volume is a one-line ShapeError."""
-    from physdyn.errors import ShapeError
 
     if watertight:
         props = mass_properties(mesh, density, method, voxel_base_pitch)

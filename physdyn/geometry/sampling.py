@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
+from physdyn.errors import PhysdynError
+
 
 def open3d():
     """The open3d module, imported on first use (heavy; only point sampling and renders need it). A bare
@@ -13,8 +15,6 @@ def open3d():
     try:
         import open3d as o3d
     except (ImportError, OSError) as exc:
-        from physdyn.errors import PhysdynError
-
         hint = ("install the system library: sudo apt-get install libusb-1.0-0" if "libusb" in str(exc)
                 else "reinstall it: pip install open3d")
         raise PhysdynError(f"open3d cannot be loaded ({str(exc).splitlines()[0]}); {hint}") from None

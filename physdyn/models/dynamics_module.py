@@ -28,6 +28,7 @@ from physdyn.models.priors import AT_REST, SHAPE_PRIORS, contact_changes, contac
 from physdyn.models.rotations import quat_multiply, rotation_6d, rotvec_to_quat
 from physdyn.models.predictors.lstm import LSTMPredictor
 from physdyn.models.single_rollout import SingleRollout
+from physdyn.models.topple_classifier import ToppleClassifier
 from physdyn.registry import ENCODERS, HEADS, PREDICTORS
 
 
@@ -116,8 +117,6 @@ class DynamicsModel(LightningModule):
         for name in ("change_shift", "velocity_shift"):
             state.setdefault(name, torch.zeros_like(getattr(self, name)))
         if checkpoint.get("topple_classifier"):
-            from physdyn.models.topple_classifier import ToppleClassifier
-
             self.topple_classifier = ToppleClassifier.from_dict(checkpoint["topple_classifier"])
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:

@@ -16,14 +16,21 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import lightning
 import numpy as np
 import torch
+import trimesh
 from lightning import LightningModule
+from lightning.pytorch.callbacks import ModelCheckpoint
 from torch import nn
 from torch.utils.data import DataLoader, TensorDataset
 
-from physdyn.config import OptimConfig, PretrainConfig, PretrainDataConfig, load_config
-from physdyn.errors import ConfigError, PhysdynError, ShapeError
+from physdyn.config import OptimConfig, PretrainConfig, PretrainDataConfig, load_config, to_dict
+from physdyn.errors import ConfigError, ShapeError
+from physdyn.geometry.sampling import sample_surface_points
+from physdyn.models.optimizer import adam_with_schedule
+from physdyn.models.run_directory import FINISHED, prepare_run_directory, run_directory, save_config_yaml
+from physdyn.models.trainer_setup import build_trainer, ignore_lightning_noise, validate_trainer_args
 from physdyn.registry import ENCODERS, SHAPE_FAMILIES
 
 DEFAULT_SHAPES_PER_FAMILY = 40
@@ -49,8 +56,6 @@ class PretrainResult:
 
 def _sample(mesh, cfg: PretrainDataConfig, seed: int) -> np.ndarray:
     try:
-        from physdyn.geometry.sampling import sample_surface_points
-
         pts = sample_surface_points(mesh, cfg.num_points, cfg.oversample, seed)
     except ImportError:  # open3d missing: plain area-weighted sampling
         pts = mesh.sample(cfg.num_points, seed=seed)
@@ -59,8 +64,6 @@ def _sample(mesh, cfg: PretrainDataConfig, seed: int) -> np.ndarray:
 
 
 def load_modelnet(cfg: PretrainDataConfig, seed: int) -> ShapeClouds:
-    import trimesh
-
     root = Path(cfg.modelnet_root).expanduser()
     classes = sorted(p.name for p in root.iterdir() if p.is_dir()) if root.is_dir() else []
     if not classes:
@@ -167,16 +170,12 @@ class ShapeClassifier(LightningModule):
         self._step(batch, "val", False)
 
     def configure_optimizers(self):
-        from physdyn.models.optimizer import adam_with_schedule
-
         total = float(self.trainer.estimated_stepping_batches)
         per_step = self.hparams.get("batch_size", 1) * self.trainer.world_size
         return adam_with_schedule(self.parameters(), OptimConfig(**self.hparams.optim), total, per_step)
 
 
 def load_pretrain_config(path, overrides: list[str] | None = None) -> PretrainConfig:
-    from physdyn.models.trainer_setup import validate_trainer_args
-
     cfg = load_config(PretrainConfig, path, overrides)
     if not cfg.encoder.name:
         raise ConfigError(f"config key 'encoder.name': missing; registered: {', '.join(ENCODERS.names())}")
@@ -197,12 +196,6 @@ def save_encoder(encoder: nn.Module, name: str, params: dict, classes: list[str]
 
 def pretrain(config: PretrainConfig, overwrite: bool = False) -> PretrainResult:
     """Train ``config.encoder`` to classify shapes; write ``<out_dir>/encoder.pt`` (see module docstring)."""
-    import lightning
-    from lightning.pytorch.callbacks import ModelCheckpoint
-
-    from physdyn.config import to_dict
-    from physdyn.models.run_directory import FINISHED, prepare_run_directory, run_directory, save_config_yaml
-    from physdyn.models.trainer_setup import build_trainer, ignore_lightning_noise
 
     cfg = config
     out_dir = run_directory(cfg)

@@ -26,6 +26,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.spatial import ConvexHull, QhullError
+
+from physdyn.data.windows import subsample_indices, world_oriented_points
+from physdyn.errors import PhysdynError
 
 FOOTPRINT_DEPTH = 0.005  # m: cloud points this close to the lowest one form the footprint
 GRAVITY = 9.81
@@ -57,7 +61,6 @@ def _units(x: np.ndarray) -> np.ndarray:
 
 def _cloud_features(P: np.ndarray) -> dict[str, Any]:
     """What the features need of one cloud alone, whatever the push: height, footprint hull, moments."""
-    from scipy.spatial import ConvexHull, QhullError
 
     z = P[:, 2]
     foot = P[z <= z.min() + FOOTPRINT_DEPTH, :2]
@@ -224,7 +227,6 @@ def best_threshold(probability: np.ndarray, label: np.ndarray) -> float:
 
 def store_features(store: Any, sims: np.ndarray, num_points: int | None, friction: float, seed: int = 0) -> np.ndarray:
     """``topple_features`` of a store's simulations at step 0, from the cloud the model would see."""
-    from physdyn.data.windows import subsample_indices, world_oriented_points
 
     sims = np.asarray(sims, dtype=np.int64)
     first = store.start[sims]
@@ -241,7 +243,6 @@ def fit_topple_classifier(store: Any, num_points: int | None = None, friction: f
     """Fit on the store's training split, choose the threshold on its validation split. Returns the
     classifier and a report (accuracies on train and validation, counts). ``num_points``: the cloud size
     (default: all the store's points; 1,024 points classify better than the 256 a CPU model sees)."""
-    from physdyn.errors import PhysdynError
 
     train, val = np.flatnonzero(store.split == 0), np.flatnonzero(store.split == 1)
     y_train, y_val = store.toppled[train].astype(float), store.toppled[val].astype(bool)

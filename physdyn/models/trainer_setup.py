@@ -3,12 +3,20 @@ TensorBoard), a progress display for terminals and plain lines for logs, and Lig
 
 from __future__ import annotations
 
+import csv
 import inspect
 import logging
+import sys
 import time
 import warnings
 from pathlib import Path
 from typing import Any
+
+from lightning import Trainer
+from lightning.pytorch.callbacks import ProgressBar, TQDMProgressBar
+from lightning.pytorch.loggers import CSVLogger, TensorBoardLogger
+from lightning.pytorch.loggers.csv_logs import ExperimentWriter
+from lightning.pytorch.loggers.logger import rank_zero_experiment
 
 from physdyn.errors import ConfigError
 
@@ -23,8 +31,6 @@ RESERVED_TRAINER_KEYS = {
 
 
 def trainer_argument_names() -> set[str]:
-    from lightning import Trainer
-
     return set(inspect.signature(Trainer.__init__).parameters) - {"self"}
 
 
@@ -41,11 +47,6 @@ def _resumable_csv_logger(out_dir: Path, keep_until_step: int | None):
     """Lightning's CSV logger, except that a resumed run appends to its metrics.csv (Lightning's writer
     deletes the file on start): rows up to the checkpoint's step are kept, later ones (logged after the
     checkpoint, before the interruption) are dropped, as training repeats those steps."""
-    import csv
-
-    from lightning.pytorch.loggers import CSVLogger
-    from lightning.pytorch.loggers.csv_logs import ExperimentWriter
-    from lightning.pytorch.loggers.logger import rank_zero_experiment
 
     class AppendingWriter(ExperimentWriter):
         def _check_log_dir_exists(self) -> None:
@@ -77,9 +78,6 @@ def _resumable_csv_logger(out_dir: Path, keep_until_step: int | None):
 def _progress_bar(stream=None):
     """Lightning's bar on a terminal; elsewhere (a log file, CI) one plain line every ``PLAIN_EVERY_S``
     seconds and after each validation, instead of hundreds of carriage-return updates."""
-    import sys
-
-    from lightning.pytorch.callbacks import ProgressBar, TQDMProgressBar
 
     stream = stream or sys.stderr
     if hasattr(stream, "isatty") and stream.isatty():
@@ -168,10 +166,7 @@ def _drop_lightning_tips() -> None:
 
 def build_trainer(cfg_trainer: dict[str, Any], out_dir: Path, callbacks: list, progress_bar: bool, loggers: bool = True,
                   resumed_step: int | None = None):
-    from lightning import Trainer
-
     _drop_lightning_tips()
-    from lightning.pytorch.loggers import TensorBoardLogger
 
     validate_trainer_args(cfg_trainer)
     kwargs = {"log_every_n_steps": 10, **cfg_trainer}

@@ -9,21 +9,24 @@ ends, ``finished.json``. An existing run directory is never overwritten silently
 from __future__ import annotations
 
 import json
-import logging
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import lightning
 import numpy as np
 import torch
+from lightning.pytorch.callbacks import EarlyStopping, LearningRateMonitor, ModelCheckpoint
 
 from physdyn.config import ExperimentConfig, load_config
-from physdyn.data.normalization import NORMALIZATION_MODES
+from physdyn.data.datamodule import DynamicsDataModule
+from physdyn.data.normalization import NORMALIZATION_MODES, Normalization
 from physdyn.models.checkpoint_file import read_checkpoint
 from physdyn.models.losses import LOSS_KINDS
 from physdyn.models.priors import CONTACT_INERTIA, PRIORS, SHAPE_PRIORS
 from physdyn.data.store import StoreData
 from physdyn.errors import ConfigError, PhysdynError
+from physdyn.models.dynamics_module import DynamicsModel
 from physdyn.models.run_directory import (
     FINISHED, check_resumed_config, is_global_zero_process, prepare_run_directory, run_directory, save_config_yaml,
 )
@@ -95,11 +98,6 @@ def fit(config: ExperimentConfig, resume: bool = False, overwrite: bool = False,
     ``resume`` continues from ``<out_dir>/last.ckpt`` (``config.ckpt_path`` from that checkpoint instead);
     ``store`` skips reading ``config.data.store`` again (tests, notebooks).
     """
-    import lightning
-    from lightning.pytorch.callbacks import EarlyStopping, LearningRateMonitor, ModelCheckpoint
-
-    from physdyn.data.datamodule import DynamicsDataModule
-    from physdyn.models.dynamics_module import DynamicsModel
 
     cfg = validate_experiment_config(config)
     out_dir = run_directory(cfg)
@@ -124,8 +122,6 @@ def fit(config: ExperimentConfig, resume: bool = False, overwrite: bool = False,
         resumed_step = int(saved_ckpt.get("global_step", 0)) if resume else None
         saved = saved_ckpt.get("hyper_parameters", {}).get("normalization")
         if saved:
-            from physdyn.data.normalization import Normalization
-
             normalization = Normalization.from_dict(saved)
     data_info = {
         "store": str(cfg.data.store),

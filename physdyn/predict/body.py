@@ -8,8 +8,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import trimesh
 
-from physdyn.errors import PredictionError
+from physdyn.config import DataConfig, MassConfig
+from physdyn.errors import PredictionError, ShapeError
+from physdyn.geometry.mesh_io import check_mesh, load_mesh
+from physdyn.sim.body import body_surface_points, rigid_body
+from physdyn.sim.trajectory import resting_com_position
 
 POINTS_SEED = 0  # fixed: the same mesh always gets the same cloud, so predictions are reproducible
 IN_MEMORY = "<in-memory>"
@@ -30,9 +35,6 @@ class PreparedBody:
     def points_body(self, num_points: int) -> np.ndarray:
         """(num_points, 3) float32 surface points in the body frame (mesh axes, origin at the com)."""
         if num_points not in self._points:
-            from physdyn.config import DataConfig
-            from physdyn.sim.body import body_surface_points
-
             self._points[num_points] = body_surface_points(self.mesh, self.spec, num_points, DataConfig().oversample,
                                                            POINTS_SEED)
         return self._points[num_points]
@@ -41,12 +43,6 @@ class PreparedBody:
 def prepare_body(mesh: Any, scale: float = 1.0, density: float | None = None) -> PreparedBody:
     """A mesh file path or ``trimesh.Trimesh`` -> ``PreparedBody``. Exact mass properties of the solid, or
     of its convex hull (with a note) when the mesh is not a closed volume. Raises ``ShapeError``."""
-    import trimesh
-
-    from physdyn.config import MassConfig
-    from physdyn.errors import ShapeError
-    from physdyn.geometry.mesh_io import check_mesh, load_mesh
-    from physdyn.sim.body import rigid_body
 
     if isinstance(mesh, PreparedBody):
         return mesh
@@ -70,6 +66,5 @@ def prepare_body(mesh: Any, scale: float = 1.0, density: float | None = None) ->
 
 def initial_pose(spec: Any, orientation_xyzw: np.ndarray) -> np.ndarray:
     """The centre of mass (3,) of the object at rest in this orientation: lowest point on z = 0, x = y = 0."""
-    from physdyn.sim.trajectory import resting_com_position
 
     return resting_com_position(spec, orientation_xyzw)

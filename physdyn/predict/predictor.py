@@ -19,11 +19,17 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
+import torch
 
 from physdyn.errors import PhysdynError, PredictionError, PredictionWarning
+from physdyn.eval.baselines import load_checkpoint
+from physdyn.eval.metrics import TOPPLE_THRESHOLD
+from physdyn.eval.rollout import rollout
 from physdyn.geometry.mass import vertical_inertia
+from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_rotvec
 from physdyn.predict.body import PreparedBody, initial_pose, prepare_body
 from physdyn.predict.simulator import SIMULATOR_NAME, simulate_from_state
+from physdyn.sim.trajectory import topple_labels
 
 BUNDLED_CHECKPOINT = Path(__file__).resolve().parents[1] / "assets" / "bundled.ckpt"
 DEFAULT_NUM_POINTS = 1024
@@ -163,9 +169,6 @@ class Predictor:
         rolled out ``chunk_size`` at a time, which bounds memory. Results equal per-request ``predict`` up
         to float32 round-off of batched arithmetic.
         """
-        from physdyn.eval.metrics import TOPPLE_THRESHOLD
-        from physdyn.eval.rollout import rollout
-        from physdyn.sim.trajectory import topple_labels
 
         meshes = list(meshes)
         R = len(meshes)
@@ -259,7 +262,6 @@ class Predictor:
 
 def resolve_device(device: str) -> str:
     """"cpu", "cuda" (or "cuda:N"), or "auto" (the GPU when torch sees one) -> a torch device name."""
-    import torch
 
     name = str(device).lower()
     if name == "auto":
@@ -277,7 +279,6 @@ def load_predictor(checkpoint: Any = None, physics: Any = None, device: str = "c
     """A ``Predictor`` from a `physdyn fit` checkpoint path, a loaded ``DynamicsModel``, or (None) the
     model bundled with physdyn, on ``device`` (cpu, cuda or auto). Raises a one-line ``PhysdynError`` for
     anything else."""
-    from physdyn.eval.baselines import load_checkpoint
 
     if checkpoint is None:
         if not BUNDLED_CHECKPOINT.is_file():
@@ -293,7 +294,6 @@ def load_predictor(checkpoint: Any = None, physics: Any = None, device: str = "c
 
 def summary(result: dict[str, Any]) -> str:
     """A few human lines: where the object ends, how far it turned, whether it toppled."""
-    from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_rotvec
 
     lines = []
     for label, res in (("prediction", result), ("simulation", result.get("simulated"))):

@@ -7,6 +7,11 @@ from typing import Any
 
 import numpy as np
 
+from physdyn.config import PhysicsConfig
+from physdyn.sim.bullet import pb
+from physdyn.sim.trajectory import place_at_rest, record, topple_labels
+from physdyn.sim.world import PhysicsWorld
+
 SIMULATOR_NAME = "pybullet"  # the ``checkpoint`` key of a simulated result
 
 
@@ -19,10 +24,6 @@ def simulate_from_state(spec: Any, orientation_xyzw: np.ndarray, lin_vel: np.nda
     and zero velocities. Returns ``com_position`` (T, 3), ``orientation_xyzw`` (T, 4) of the mesh frame,
     ``linear_velocity`` (T, 3), ``angular_velocity`` (T, 3), ``topple_label`` (T,) bool (the 45° rule).
     """
-    from physdyn.config import PhysicsConfig
-    from physdyn.sim.bullet import pb
-    from physdyn.sim.trajectory import place_at_rest, record, topple_labels
-    from physdyn.sim.world import PhysicsWorld
 
     phys = physics or PhysicsConfig()
     with PhysicsWorld(phys) as world:

@@ -15,7 +15,7 @@ def _quiet_import():
     try:
         os.dup2(devnull, 1)
         os.dup2(devnull, 2)
-        import pybullet
+        import pybullet  # inside: its import prints a build banner, silenced here
     finally:
         os.dup2(saved[0], 1)
         os.dup2(saved[1], 2)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import json
 import multiprocessing as mp
+import os
 import sys
 import warnings
 import zlib
@@ -22,8 +23,13 @@ import numpy as np
 
 from physdyn.config import DataConfig, to_dict
 from physdyn.errors import ConfigError, ShapeError
+from physdyn.geometry.mass import exact_mass_properties
+from physdyn.geometry.poses import stable_orientations
 from physdyn.registry import SHAPE_FAMILIES
+from physdyn.sim.body import rigid_body
+from physdyn.sim.impulse import sample_initial_condition
 from physdyn.sim.trajectory import InitialCondition, Trajectory, simulate, steps_per_frame
+from physdyn.sim.world import PhysicsWorld
 
 
 @dataclass(frozen=True)
@@ -161,8 +167,6 @@ _WORKER: dict[str, Any] = {}
 def _worker_state(cfg: DataConfig) -> dict:
     key = config_hash(cfg)
     if _WORKER.get("key") != key:
-        from physdyn.sim.world import PhysicsWorld
-
         if "world" in _WORKER:
             _WORKER["world"].close()
         _WORKER.clear()
@@ -172,9 +176,6 @@ def _worker_state(cfg: DataConfig) -> dict:
 
 def prepare_shape(cfg: DataConfig, family, task: ShapeTask) -> dict:
     """Draw one shape and compute everything stored about it. Raises ShapeError if it is unusable."""
-    from physdyn.geometry.mass import exact_mass_properties
-    from physdyn.geometry.poses import stable_orientations
-    from physdyn.sim.body import rigid_body
 
     shape_ss, sims_ss, points_ss = task_streams(cfg, task)
     instance = family.make(task.index, np.random.default_rng(shape_ss))
@@ -193,7 +194,6 @@ def prepare_shape(cfg: DataConfig, family, task: ShapeTask) -> dict:
 
 def run_block(cfg: DataConfig, block_id: int, tasks: list[ShapeTask]) -> SimulatedBlock:
     """Simulate every shape of one block."""
-    from physdyn.sim.impulse import sample_initial_condition
 
     state = _worker_state(cfg)
     world = state["world"]
@@ -268,7 +268,7 @@ def simulate_blocks(cfg: DataConfig, work: list[tuple[int, list[ShapeTask]]], wo
 
 def _execute_ray(cfg: DataConfig, work: list[tuple[int, list[ShapeTask]]], workers: int) -> Iterator[SimulatedBlock]:
     try:
-        import ray
+        import ray  # optional: pip install 'physdyn[ray]'
     except ImportError:
         raise ConfigError("--executor ray needs Ray: pip install 'physdyn[ray]'") from None
     if not ray.is_initialized():
@@ -288,6 +288,4 @@ def _execute_ray(cfg: DataConfig, work: list[tuple[int, list[ShapeTask]]], worke
 
 
 def _ray_address() -> str | None:
-    import os
-
     return os.environ.get("RAY_ADDRESS")

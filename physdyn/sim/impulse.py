@@ -7,6 +7,7 @@ import numpy as np
 from physdyn.config import DataConfig
 from physdyn.geometry.rotations import matrix_to_quat, quat_multiply
 from physdyn.sim.body import RigidBodySpec
+from physdyn.sim.bullet import pb
 from physdyn.sim.trajectory import InitialCondition, resting_com_position
 from physdyn.sim.world import PhysicsWorld
 
@@ -21,7 +22,6 @@ def push_point(world: PhysicsWorld, body: int, spec: RigidBodySpec, orientation:
     """The first point of the collision hull met by a horizontal ray along ``direction`` at ``height``
     (world z) offset sideways by ``lateral`` from the centre of mass. Halves the offset until the ray hits;
     the ray through the centre-of-mass column always hits a convex hull at a height inside it."""
-    from physdyn.sim.bullet import pb
 
     base_orientation = quat_multiply(orientation, spec.principal_quat_xyzw)
     pb.resetBasePositionAndOrientation(body, com.tolist(), base_orientation.tolist(), physicsClientId=world.client)

@@ -23,8 +23,14 @@ import trimesh
 
 from physdyn.config import MassConfig, PhysicsConfig
 from physdyn.errors import PhysdynError, ShapeError
+from physdyn.geometry.mesh_io import load_mesh
+from physdyn.geometry.poses import stable_orientations
 from physdyn.geometry.rotations import canonical_quat, continuous_quat, matrix_to_quat, quat_conjugate, quat_multiply, quat_to_matrix, rotvec_to_quat
 from physdyn.sim.body import RigidBodySpec, body_surface_points, rigid_body
+from physdyn.sim.bullet import pb
+from physdyn.sim.impulse import yaw_matrix
+from physdyn.sim.trajectory import place_at_rest
+from physdyn.sim.world import PhysicsWorld
 
 CSV_HEADER = "time,x,y,z,qx,qy,qz,qw"
 PAPER_BOX = (0.073, 0.060, 0.170)  # m, the supplement's cardboard box
@@ -78,7 +84,6 @@ def tracked_shape(box: str | None = None, mesh_path: str | None = None, scale: f
                   density: float = DEFAULT_DENSITY) -> TrackedShape:
     """The tracked shape from ``--shape box:W,D,H`` (a box centred at its mesh origin, edges along the mesh
     axes) or ``--mesh FILE`` (read in its own frame, times ``scale``). Mass at uniform ``density``."""
-    from physdyn.geometry.mesh_io import load_mesh
 
     if (box is None) == (mesh_path is None):
         raise ShapeError("give the tracked shape with exactly one of --shape box:W,D,H or --mesh FILE")
@@ -141,10 +146,6 @@ def ramp_acceleration(speed: float, duration: float, mu_g: float) -> float:
 def simulate_trial(world, body: int, shape: TrackedShape, rng: np.random.Generator,
                    settings: SyntheticSettings = SyntheticSettings()) -> SyntheticTrial:
     """One push of ``shape`` (already added to ``world`` as ``body``) recorded like a tracker would."""
-    from physdyn.geometry.poses import stable_orientations
-    from physdyn.sim.bullet import pb
-    from physdyn.sim.impulse import yaw_matrix
-    from physdyn.sim.trajectory import place_at_rest
 
     phys, cid, spec = world.physics, world.client, shape.spec
     every = int(round(1.0 / (phys.time_step * settings.rate_hz)))
@@ -222,7 +223,6 @@ def simulate_mocap_trials(out: str | Path, trials: int = 12, seed: int = 0, box:
                           physics: PhysicsConfig | None = None) -> list[Path]:
     """Write ``trials`` synthetic trials (``trial_NNN.csv`` + ``trial_NNN.truth.npz``) into ``out``.
     Returns the CSV paths. Refuses a folder that already holds CSV files unless ``overwrite``."""
-    from physdyn.sim.world import PhysicsWorld
 
     if trials < 1:
         raise PhysdynError(f"--trials must be at least 1, got {trials}")

@@ -11,8 +11,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import trimesh
 
 from physdyn.errors import PhysdynError
+from physdyn.files import atomic_output
+from physdyn.geometry.mesh_io import load_mesh
+from physdyn.geometry.rotations import quat_to_matrix
+from physdyn.predict.prediction_files import check_output_path
 
 MAX_FACES = 500
 ANIMATION_EXTENSIONS = (".gif", ".mp4")
@@ -26,7 +31,7 @@ class RenderError(PhysdynError):
 
 
 def ffmpeg_available() -> bool:
-    from matplotlib.animation import FFMpegWriter
+    from matplotlib.animation import FFMpegWriter  # heavy (matplotlib): loaded when asked
 
     return bool(FFMpegWriter.isAvailable())
 
@@ -34,7 +39,6 @@ def ffmpeg_available() -> bool:
 def check_animation_path(path: str | Path, overwrite: bool = False) -> Path:
     """Refuse an unsupported extension, an MP4 without ffmpeg, or an existing file, before any work.
     An .html path is a viewer page (``physdyn.viz.viewer``)."""
-    from physdyn.predict.prediction_files import check_output_path
 
     path = check_output_path(path, overwrite, RENDER_EXTENSIONS, what="animation")
     if path.suffix.lower() == ".mp4" and not ffmpeg_available():
@@ -47,7 +51,7 @@ def decimate(vertices: np.ndarray, faces: np.ndarray, max_faces: int = MAX_FACES
     if len(faces) <= max_faces:
         return vertices, faces
     try:
-        import open3d as o3d
+        import open3d as o3d  # heavy (~1.2 s): only for decimating large meshes
 
         m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.asarray(vertices, np.float64)),
                                       o3d.utility.Vector3iVector(np.asarray(faces, np.int32)))
@@ -62,8 +66,6 @@ def decimate(vertices: np.ndarray, faces: np.ndarray, max_faces: int = MAX_FACES
 
 
 def _load(mesh: Any, scale: float):
-    import trimesh
-
     if isinstance(mesh, trimesh.Trimesh):
         m = mesh.copy()
         if scale != 1.0:
@@ -71,14 +73,11 @@ def _load(mesh: Any, scale: float):
         return m
     if hasattr(mesh, "mesh") and hasattr(mesh, "spec"):  # a PreparedBody
         return mesh.mesh
-    from physdyn.geometry.mesh_io import load_mesh
 
     return load_mesh(mesh, scale)
 
 
 def _posed(vertices: np.ndarray, com_mesh: np.ndarray, q_xyzw: np.ndarray, com_position: np.ndarray) -> np.ndarray:
-    from physdyn.geometry.rotations import quat_to_matrix
-
     return (vertices - com_mesh) @ quat_to_matrix(q_xyzw).T + com_position
 
 
@@ -101,7 +100,7 @@ def render_animation(mesh: Any, result: dict[str, Any], path: str | Path, fps: f
     step. With ``result["simulated"]`` the prediction and the simulation are drawn side by side. Each
     panel shows the ground, the trail of the centre of mass and the time.
     """
-    import matplotlib
+    import matplotlib  # heavy (~0.4 s), with PIL: loaded when an animation is drawn
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
@@ -110,7 +109,7 @@ def render_animation(mesh: Any, result: dict[str, Any], path: str | Path, fps: f
 
     path = check_animation_path(path, overwrite)
     if path.suffix.lower() == ".html":
-        from physdyn.viz.viewer import scene_from_prediction, write_viewer
+        from physdyn.viz.viewer import scene_from_prediction, write_viewer  # viewer imports this module
 
         m = _load(mesh, scale)
         return write_viewer([scene_from_prediction(result, m)], path, title=f"physdyn: {path.stem}", overwrite=overwrite)
@@ -179,9 +178,7 @@ def render_animation(mesh: Any, result: dict[str, Any], path: str | Path, fps: f
 
 
 def _write(images: list, path: Path, fps: float) -> None:
-    from PIL import Image
-
-    from physdyn.files import atomic_output
+    from PIL import Image  # with matplotlib, loaded when an animation is written
 
     with atomic_output(path, suffix=path.suffix) as tmp:
         if path.suffix.lower() == ".gif":
@@ -194,7 +191,7 @@ def _write(images: list, path: Path, fps: float) -> None:
 
 
 def _write_mp4(images: list, path: str, fps: float) -> None:
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: loaded when an animation is written
     from matplotlib.animation import FFMpegWriter
 
     h, w = np.asarray(images[0]).shape[:2]

@@ -14,9 +14,15 @@ from __future__ import annotations
 from typing import Any, Sequence
 
 import numpy as np
+import trimesh
 
+from physdyn.config import DataConfig, config_from_dict
 from physdyn.data.store import StoreData
+from physdyn.eval.evaluate import gather_truth, predict_rollouts
 from physdyn.eval.metrics import TOPPLE_THRESHOLD
+from physdyn.geometry.mass import solid_mass_properties
+from physdyn.geometry.mesh_io import prepare_mesh
+from physdyn.sim.generate import build_family, plan, task_streams
 from physdyn.viz.viewer import Trajectory, ViewerScene
 
 COM_TOLERANCE = 1e-4  # m: a rebuilt mesh whose centre of mass moved more is not the stored shape
@@ -24,10 +30,6 @@ COM_TOLERANCE = 1e-4  # m: a rebuilt mesh whose centre of mass moved more is not
 
 def _rebuild_mesh(store: StoreData, shape_id: int, cache: dict) -> Any | None:
     """The shape's mesh (mesh frame, metres) from the store's generation config, or None."""
-    from physdyn.config import DataConfig, config_from_dict
-    from physdyn.geometry.mass import solid_mass_properties
-    from physdyn.geometry.mesh_io import prepare_mesh
-    from physdyn.sim.generate import build_family, plan, task_streams
 
     if "tasks" not in cache:
         try:
@@ -63,7 +65,6 @@ def _rebuild_mesh(store: StoreData, shape_id: int, cache: dict) -> Any | None:
 
 def shape_mesh(store: StoreData, shape_id: int, cache: dict | None = None) -> tuple[np.ndarray, np.ndarray, str | None]:
     """(vertices (V, 3) in mesh coordinates, faces (F, 3), a note or None) for a store's shape."""
-    import trimesh
 
     mesh = _rebuild_mesh(store, int(shape_id), {} if cache is None else cache)
     if mesh is not None:
@@ -123,7 +124,6 @@ def store_scenes(store: StoreData, sims: Sequence[int], predicted: Any, truth: d
 
 def rollout_scenes(model: Any, store: StoreData, sims: Sequence[int], seed: int = 0) -> list[ViewerScene]:
     """Roll ``model`` out on the given simulations (as ``physdyn test`` does, these alone) and make their scenes."""
-    from physdyn.eval.evaluate import gather_truth, predict_rollouts
 
     sims = np.asarray(sims, dtype=np.int64)
     truth = gather_truth(store, sims)

@@ -23,6 +23,9 @@ from typing import Any, Sequence
 import numpy as np
 
 from physdyn.errors import PhysdynError
+from physdyn.files import atomic_output
+from physdyn.predict.prediction_files import check_output_path
+from physdyn.viz.render import _load, decimate
 
 VIEWER_EXTENSIONS = (".html",)
 MAX_FACES = 800  # per mesh: orbiting stays smooth in software WebGL, shapes stay recognisable
@@ -70,8 +73,6 @@ class ViewerScene:
     notes: list[str] = field(default_factory=list)
 
     def as_json(self) -> dict[str, Any]:
-        from physdyn.viz.render import decimate
-
         vertices, faces = decimate(np.asarray(self.vertices, np.float64), np.asarray(self.faces, np.int64), MAX_FACES)
         used = np.unique(faces)  # a decimated face subset leaves vertices no face uses
         remap = np.full(len(vertices), -1, dtype=np.int64)
@@ -121,7 +122,6 @@ def _bounds(vertices: np.ndarray, com_mesh: np.ndarray, trajectories: Sequence[T
 def scene_from_prediction(result: dict[str, Any], mesh: Any, title: str | None = None) -> ViewerScene:
     """A scene from a prediction (``Predictor.predict``'s dict or ``read_prediction``'s) and its mesh (a
     path, a ``trimesh.Trimesh`` or a ``PreparedBody``, at the scale it was predicted at)."""
-    from physdyn.viz.render import _load
 
     m = _load(mesh, 1.0)
     sim = result.get("simulated")
@@ -139,14 +139,12 @@ def scene_from_prediction(result: dict[str, Any], mesh: Any, title: str | None =
 
 
 def check_viewer_path(path: str | Path, overwrite: bool = False) -> Path:
-    from physdyn.predict.prediction_files import check_output_path
-
     return check_output_path(path, overwrite, VIEWER_EXTENSIONS, what="viewer page")
 
 
 def viewer_html(scenes: Sequence[ViewerScene], title: str = "physdyn viewer") -> str:
     """The page's text: plotly.js, our script and the scenes' data, all inline."""
-    from plotly.offline import get_plotlyjs
+    from plotly.offline import get_plotlyjs  # heavy: loaded when a page is written
 
     if not scenes:
         raise ViewerError("a viewer page needs at least one scene")
@@ -159,7 +157,6 @@ def viewer_html(scenes: Sequence[ViewerScene], title: str = "physdyn viewer") ->
 def write_viewer(scenes: Sequence[ViewerScene], path: str | Path, title: str = "physdyn viewer",
                  overwrite: bool = False) -> Path:
     """Write the page for ``scenes`` to ``path`` (.html) in one rename: no half-written page is left."""
-    from physdyn.files import atomic_output
 
     path = check_viewer_path(path, overwrite)
     text = viewer_html(scenes, title)
