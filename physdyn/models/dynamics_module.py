@@ -22,11 +22,11 @@ from physdyn.config import ExperimentConfig, config_from_dict, to_dict
 from physdyn.data.normalization import Normalization
 from physdyn.data.windows import DELTA_KEYS
 from physdyn.errors import ConfigError
+from physdyn.models.batch_rollout import batch_rollout
 from physdyn.models.losses import dynamics_loss
 from physdyn.models.optimizer import adam_with_schedule
-from physdyn.models.priors import AT_REST, SHAPE_PRIORS, contact_changes, contact_geometry, prior_changes
-from physdyn.models.rotations import quat_multiply, rotation_6d, rotvec_to_quat
-from physdyn.models.predictors.lstm import LSTMPredictor
+from physdyn.models.priors import SHAPE_PRIORS, contact_changes, contact_geometry, prior_changes
+from physdyn.models.rotations import rotation_6d
 from physdyn.models.single_rollout import SingleRollout
 from physdyn.models.topple_classifier import ToppleClassifier
 from physdyn.registry import ENCODERS, HEADS, PREDICTORS
@@ -175,23 +175,23 @@ class DynamicsModel(LightningModule):
         """feature (B, F); velocities (B, T, 3) SI, world frame; orientation (B, T, 4) xyzw, the rotation since
         the point cloud's orientation (only with ``model.orientation_input``)
         -> (changes (B, T, 12) normalised [dv, dw, dp, dtheta], topple logit (B, T) or None, state)."""
-        feature, geometry = self._split_code(feature)
-        inputs = self._network_inputs(feature, linear_velocity, angular_velocity, orientation)
+        feature, geometry = self.split_code(feature)
+        inputs = self.network_inputs(feature, linear_velocity, angular_velocity, orientation)
         features, state = self.predictor(inputs, state)
         changes, logit = self.head(features)
-        prior = self._prior(linear_velocity, angular_velocity, orientation, geometry)
+        prior = self.analytic_prior(linear_velocity, angular_velocity, orientation, geometry)
         if prior is not None:  # the network predicts the residual to the analytic prior
-            changes = self._residual(changes, linear_velocity, angular_velocity, prior)
+            changes = self.with_residual(changes, linear_velocity, angular_velocity, prior)
         return changes, logit, state
 
-    def _split_code(self, code: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+    def split_code(self, code: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
         """A shape code from ``encode`` -> (the encoder's feature, the contact prior's geometry or None)."""
         if not self.uses_shape_prior:
             return code, None
         width = int(self.encoder.out_dim)
         return code[:, :width], code[:, width:]
 
-    def _network_inputs(self, feature: torch.Tensor, linear_velocity: torch.Tensor, angular_velocity: torch.Tensor,
+    def network_inputs(self, feature: torch.Tensor, linear_velocity: torch.Tensor, angular_velocity: torch.Tensor,
                         orientation: torch.Tensor | None) -> torch.Tensor:
         """The predictor's input (B, T, D): normalised velocities, the orientation since step 0 (6D) for
         ``model.orientation_input``, the shape feature."""
@@ -203,7 +203,7 @@ class DynamicsModel(LightningModule):
             parts.append(rotation_6d(orientation))
         return torch.cat(parts + [feature[:, None, :].expand(-1, T, -1)], dim=-1)
 
-    def _prior(self, linear_velocity: torch.Tensor, angular_velocity: torch.Tensor, orientation: torch.Tensor | None,
+    def analytic_prior(self, linear_velocity: torch.Tensor, angular_velocity: torch.Tensor, orientation: torch.Tensor | None,
                geometry: torch.Tensor | None) -> torch.Tensor | None:
         """The analytic prior's changes (B, T, 12) SI, or None without a prior."""
         if geometry is not None:
@@ -212,7 +212,7 @@ class DynamicsModel(LightningModule):
         return prior_changes(self.config.model.prior, linear_velocity, angular_velocity, self.prior_dt,
                              self.prior_friction, self.prior_gravity)
 
-    def _moving(self, linear_velocity: torch.Tensor, angular_velocity: torch.Tensor) -> torch.Tensor | None:
+    def rest_gate(self, linear_velocity: torch.Tensor, angular_velocity: torch.Tensor) -> torch.Tensor | None:
         """(B, T) bool: above the residual's rest gate, where the network's changes count; None without a gate."""
         m = self.config.model
         if m.prior == "none" or (m.residual_gate_linear <= 0 and m.residual_gate_angular <= 0):
@@ -220,10 +220,10 @@ class DynamicsModel(LightningModule):
         return ((linear_velocity[..., :2].norm(dim=-1) > m.residual_gate_linear)
                 | (angular_velocity.norm(dim=-1) > m.residual_gate_angular))
 
-    def _residual(self, changes: torch.Tensor, linear_velocity: torch.Tensor, angular_velocity: torch.Tensor,
+    def with_residual(self, changes: torch.Tensor, linear_velocity: torch.Tensor, angular_velocity: torch.Tensor,
                   prior: torch.Tensor) -> torch.Tensor:
         """The network's normalised changes as a residual on the prior's (SI): their sum, normalised."""
-        moving = self._moving(linear_velocity, angular_velocity)
+        moving = self.rest_gate(linear_velocity, angular_velocity)
         if moving is not None:
             # Near rest the prior's stop is exact (below 0.1 m/s a slide ends within one 1/15 s step)
             # and the residual only adds drift: below both speeds the prediction is the prior's.
@@ -296,7 +296,7 @@ class DynamicsModel(LightningModule):
                 args = (points, linear_velocity0, angular_velocity0, steps, warm_linear, warm_angular, spin_inertia)
                 if len(points) == 1 and SingleRollout.supports(self):
                     return self._single_rollout(*args, topple=topple)
-                return self._rollout_changes(*args, topple=topple)
+                return batch_rollout(self, *args, topple=topple)
         finally:
             if was_training:
                 self.train()
@@ -311,111 +311,6 @@ class DynamicsModel(LightningModule):
                                          steps, None if warm_v is None else warm_v[0], None if warm_w is None else warm_w[0],
                                          topple)
         return {k: None if x is None else torch.from_numpy(x) for k, x in out.items()}
-
-    def _rollout_changes(self, points, linear_velocity0, angular_velocity0, steps, warm_linear, warm_angular,
-                         spin_inertia=None, topple=True):
-        """The batched roll-out. Work is spent on the sequences still moving: below the rest gate the
-        network's changes are not used, so (when no topple probabilities are wanted) such a sequence only
-        queues its input, taken by the LSTM before the next step that needs it (the same states in the same
-        order, as ``SingleRollout`` does); and the contact prior of a sequence at rest is the stop itself.
-        In a 3 s roll-out most sequences rest for most steps."""
-        device, f64 = self.device, torch.float64
-        points = torch.as_tensor(points, dtype=torch.float32, device=device)
-        B = points.shape[0]
-        # One encoding per distinct cloud: a batch of requests often pushes the same object in the same pose
-        # (in eval mode every cloud is encoded on its own, so this changes no number).
-        unique, inverse = torch.unique(points.reshape(B, -1), dim=0, return_inverse=True)
-        code = self.with_spin_inertia(self.encode(unique.reshape(len(unique), *points.shape[1:]))[inverse], spin_inertia)
-        feature, geometry = self._split_code(code)
-        v = torch.as_tensor(linear_velocity0, dtype=f64, device=device).reshape(B, 3)
-        w = torch.as_tensor(angular_velocity0, dtype=f64, device=device).reshape(B, 3)
-        K = 0 if warm_linear is None else int(warm_linear.shape[1])
-        if K:
-            warm_linear = torch.as_tensor(warm_linear, dtype=f64, device=device)
-            warm_angular = torch.as_tensor(warm_angular, dtype=f64, device=device)
-        changes = torch.empty(B, steps, 12, dtype=f64, device=device)
-        fed = torch.empty(B, steps, 6, dtype=f64, device=device)
-        want_topple = topple and self.predicts_topple
-        topple_out = torch.zeros(B, steps, dtype=f64, device=device) if want_topple else None
-        turn = torch.zeros(B, 4, dtype=f64, device=device) if self.uses_orientation else None
-        if turn is not None:
-            turn[:, 3] = 1.0
-        turns = torch.empty(B, steps, 4, dtype=torch.float32, device=device) if turn is not None else None
-        scale, shift = self.change_scale.to(f64), self.change_shift.to(f64)
-        # Rows of the recurrent state can be taken and put back only for the LSTM's (h, c); other predictors
-        # run every sequence at every step.
-        skip = not want_topple and type(self.predictor) is LSTMPredictor
-        L, H = (self.predictor.config.num_layers, self.predictor.config.hidden) if skip else (0, 0)
-        h = torch.zeros(L, B, H, device=device) if skip else None
-        c = torch.zeros(L, B, H, device=device) if skip else None
-        queued_from = torch.full((B,), -1, dtype=torch.long, device=device)  # first step not yet taken, or -1
-        state = None
-        for t in range(steps):
-            if 1 <= t <= K:
-                v, w = warm_linear[:, t - 1], warm_angular[:, t - 1]
-            fed[:, t, :3], fed[:, t, 3:] = v, w
-            v32, w32 = v.float()[:, None], w.float()[:, None]
-            q = None if turn is None else turn.float()[:, None]
-            if turns is not None:
-                turns[:, t] = q[:, 0]
-            moving = self._moving(v32, w32)
-            net = torch.zeros(B, 1, 12, device=device)
-            if not skip:
-                inputs = self._network_inputs(feature, v32, w32, q)
-                features, state = self.predictor(inputs, state)
-                net, logit = self.head(features)
-                if topple_out is not None and logit is not None:
-                    topple_out[:, t] = torch.sigmoid(logit[:, 0]).to(f64)
-            else:
-                need = torch.ones(B, dtype=torch.bool, device=device) if moving is None else moving[:, 0]
-                rows = need.nonzero()[:, 0]
-                if len(rows):
-                    self._take_queued(rows, t, queued_from, feature, fed, turns, h, c)
-                    inputs = self._network_inputs(feature[rows], v32[rows], w32[rows], None if q is None else q[rows])
-                    features, (h[:, rows], c[:, rows]) = self.predictor(inputs, (h[:, rows], c[:, rows]))
-                    net[rows] = self.head(features)[0]
-                queued_from = torch.where(~need & (queued_from < 0), t, queued_from)
-            prior = self._rollout_prior(v32, w32, q, geometry)
-            out = net if prior is None else self._residual(net, v32, w32, prior)
-            si = out[:, 0].to(f64) * scale + shift
-            changes[:, t] = si
-            if turn is not None:  # R_{t+1} R_0^T = Exp(dtheta_t) R_t R_0^T, as the pose is integrated
-                turn = quat_multiply(rotvec_to_quat(si[:, 9:12]), turn)
-                turn = turn / torch.linalg.vector_norm(turn, dim=-1, keepdim=True)
-            v = v + si[:, 0:3]
-            w = w + si[:, 3:6]
-        return {"changes": changes, "fed": fed, "topple_probability": topple_out}
-
-    def _take_queued(self, rows: torch.Tensor, t: int, queued_from: torch.Tensor, feature: torch.Tensor,
-                     fed: torch.Tensor, turns: torch.Tensor | None, h: torch.Tensor, c: torch.Tensor) -> None:
-        """Run the LSTM of ``rows`` over the inputs they queued before step t (steps queued_from..t-1), in
-        one call per first queued step, and mark their queues empty."""
-        behind = rows[queued_from[rows] >= 0]
-        for first in torch.unique(queued_from[behind]).tolist():
-            group = behind[queued_from[behind] == first]
-            span = fed[group, first:t].float()
-            q = None if turns is None else turns[group, first:t]
-            inputs = self._network_inputs(feature[group], span[..., :3], span[..., 3:], q)
-            state = (h[:, group], c[:, group])
-            for k in range(inputs.shape[1]):  # step by step, as the steps that needed the network ran
-                _, state = self.predictor(inputs[:, k : k + 1], state)
-            h[:, group], c[:, group] = state
-        queued_from[rows] = -1
-
-    def _rollout_prior(self, v32: torch.Tensor, w32: torch.Tensor, q: torch.Tensor | None,
-                       geometry: torch.Tensor | None) -> torch.Tensor | None:
-        """``_prior`` for one roll-out step (B, 1, ...); the contact prior's stop of a body at rest (below
-        ``AT_REST``) without its sub-steps, as ``SingleRollout`` takes it."""
-        if geometry is None:
-            return self._prior(v32, w32, q, None)
-        rest = (v32[:, 0, :2].norm(dim=-1) < AT_REST) & (w32[:, 0, 2].abs() < AT_REST)
-        if not rest.any():
-            return self._prior(v32, w32, q, geometry)
-        prior = torch.cat([-v32, -w32, torch.zeros_like(v32), torch.zeros_like(w32)], dim=-1)
-        rows = (~rest).nonzero()[:, 0]
-        if len(rows):
-            prior[rows] = self._prior(v32[rows], w32[rows], None if q is None else q[rows], geometry[rows])
-        return prior
 
     # ------------------------------------------------------------------ training
     def _fed_velocities(self, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

@@ -10,6 +10,7 @@ from physdyn.data.normalization import compute_normalization
 from physdyn.data.store import load_store
 from physdyn.data.windows import world_oriented_points
 from physdyn.eval.evaluate import gather_truth, select_sequences
+from physdyn.models.batch_rollout import batch_rollout
 from physdyn.models.dynamics_module import DynamicsModel
 from physdyn.models.single_rollout import SingleRollout
 
@@ -55,7 +56,7 @@ def test_one_object_rollout_equals_the_torch_loop(quickstart_config, store, over
         for warm_v, warm_w in ((None, None), warm):
             fast = model.rollout_changes(points, v0, w0, 25, warm_v, warm_w)  # B = 1: the numpy roll-out
             with torch.inference_mode():
-                slow = model._rollout_changes(points, v0, w0, 25, warm_v, warm_w)  # the torch loop
+                slow = batch_rollout(model, points, v0, w0, 25, warm_v, warm_w)  # the torch loop
             for key in ("changes", "fed", "topple_probability"):
                 if slow[key] is None:
                     assert fast[key] is None
@@ -80,7 +81,7 @@ def test_the_cached_weights_follow_a_changed_model(quickstart_config, store):
         model.head.linear.bias.add_(0.1)
     after = model.rollout_changes(points, v0, w0, 10)["changes"]
     with torch.inference_mode():
-        reference = model._rollout_changes(points, v0, w0, 10, None, None)["changes"]
+        reference = batch_rollout(model, points, v0, w0, 10, None, None)["changes"]
     assert not torch.allclose(before, after)
     np.testing.assert_allclose(after.numpy(), reference.numpy(), rtol=1e-5, atol=1e-5)
 
@@ -142,7 +143,7 @@ def test_steps_below_the_rest_gate_queue_the_lstm_and_give_the_same_roll_out(qui
     for start_v, start_w, warm_v, warm_w in ((np.zeros((1, 3)), np.zeros((1, 3))) + warm, (v0, w0, None, None)):
         queued = model.rollout_changes(points, start_v, start_w, 40, warm_v, warm_w, topple=False)
         with torch.inference_mode():
-            slow = model._rollout_changes(points, start_v, start_w, 40, warm_v, warm_w)
+            slow = batch_rollout(model, points, start_v, start_w, 40, warm_v, warm_w)
         np.testing.assert_allclose(queued["changes"].numpy(), slow["changes"].numpy(), rtol=1e-5, atol=1e-5)
         fed = slow["fed"][0].numpy()
         resting = (np.linalg.norm(fed[:, :2], axis=1) < 0.1) & (np.linalg.norm(fed[:, 3:], axis=1) < 1.0)
@@ -167,9 +168,9 @@ def test_a_batch_runs_the_network_on_moving_sequences_only_and_gives_the_same_ro
     hook = model.predictor.register_forward_hook(lambda module, args, out: rows_seen.append(tuple(args[0].shape[:2])))
     try:
         with torch.inference_mode():
-            skipping = model._rollout_changes(points, v0, w0, 40, warm_v, warm_w, topple=False)
+            skipping = batch_rollout(model, points, v0, w0, 40, warm_v, warm_w, topple=False)
             calls = list(rows_seen)
-            every = model._rollout_changes(points, v0, w0, 40, warm_v, warm_w, topple=True)
+            every = batch_rollout(model, points, v0, w0, 40, warm_v, warm_w, topple=True)
     finally:
         hook.remove()
     assert skipping["topple_probability"] is None and every["topple_probability"] is not None
