@@ -296,12 +296,22 @@ def load_config(schema: Type[S], path: str | Path | None = None, overrides: List
                 raise ConfigError(f"override '{item}' is not key=value (e.g. seed=3)")
         _drop_params_of_switched_components(merged, overrides)
         if overrides:
-            merged = OmegaConf.merge(merged, *[OmegaConf.from_dotlist([item]) for item in overrides])
+            merged = OmegaConf.merge(merged, *[parse_override(item) for item in overrides])
         config = OmegaConf.to_object(merged)
     except OmegaConfBaseException as exc:
         raise ConfigError(omegaconf_message(exc)) from None
     check_values(config)
     return config  # type: ignore[return-value]
+
+
+def parse_override(item: str) -> DictConfig:
+    """One ``key=value`` override as a config tree; a value that is not valid YAML (``[`` alone) is a
+    one-line ConfigError naming the override."""
+    try:
+        return OmegaConf.from_dotlist([item])
+    except yaml.YAMLError as exc:
+        problem = str(getattr(exc, "problem", None) or exc).splitlines()[0]
+        raise ConfigError(f"override '{item}': the value is not valid YAML ({problem}); quote or fix it") from None
 
 
 def _drop_params_of_switched_components(merged: DictConfig, overrides: List[str]) -> None:

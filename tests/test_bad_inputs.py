@@ -107,6 +107,8 @@ CASES = [
     ("fit-unknown-prior", ["fit", "--config", str(QUICKSTART), *RUN_OVERRIDES, "model.prior=newton"], "model.prior"),
     ("fit-contact-without-orientation", ["fit", "--config", str(QUICKSTART), *RUN_OVERRIDES, "model.orientation_input=false"],
      "model.prior"),
+    ("fit-override-not-yaml", ["fit", "--config", str(QUICKSTART), *RUN_OVERRIDES, "model.residual_gate_linear=["],
+     "model.residual_gate_linear=[': the value is not valid YAML"),
     ("fit-loss-kind", ["fit", "--config", str(QUICKSTART), *RUN_OVERRIDES, "loss.kind=l2"], "loss.kind"),
     ("fit-feedback", ["fit", "--config", str(QUICKSTART), *RUN_OVERRIDES, "rollout.feedback=1.5"], "rollout.feedback"),
     ("fit-lr-min", ["fit", "--config", str(QUICKSTART), *RUN_OVERRIDES, "optim.lr_min=1"], "optim.lr_min"),

@@ -341,8 +341,9 @@ def test_components_options_lists_each_components_settings_and_defaults(capsys):
     assert main(["components", "--options"]) == 0
     out = capsys.readouterr().out
     lstm = out[out.index("  lstm "):out.index("  mlp ")]
-    for f in dataclasses.fields(LSTMPredictor.Config):  # every setting, with the default the code has
-        assert f"{f.name}: " in lstm and f"= {f.default!r}" in lstm
+    lines = [line.strip() for line in lstm.splitlines()[1:]]
+    for f in dataclasses.fields(LSTMPredictor.Config):  # every setting, on its own line with its type and default
+        assert f"{f.name}: {f.type} = {f.default!r}" in lines
     head = out[out.index("  no_topple "):]
     assert "(no settings)" in head.splitlines()[1]
     assert main(["components"]) == 0 and "forget_bias" not in capsys.readouterr().out  # only when asked

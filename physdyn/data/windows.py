@@ -100,7 +100,8 @@ class WindowSource:
     ``delta_*`` (B, T, 3) float32; topple_label (B, T) float32 (label of step t+1); valid (B, T) bool
     (False where step t+1 is padding); com_position0 (B, 3), orientation0_xyzw (B, 4) float64 (pose at
     the window's first step); sim, start (B,) int64; relative_orientation_xyzw (B, T, 4) float32, the
-    world-frame rotation from the window's first step to step t (``relative_rotation``).
+    world-frame rotation from the window's first step to step t (``relative_rotation``); spin_inertia (B,)
+    float32, the body's I_zz / m about the world vertical at the window's first step (``store_spin_inertia``).
     """
 
     def __init__(self, store: StoreData, window: int, num_points: int | None = None):

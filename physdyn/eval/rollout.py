@@ -148,6 +148,7 @@ def rollout(
     """
     if steps < 0:
         raise ValueError(f"steps must be >= 0, got {steps}")
+    spin_inertia = _if_taken(model, spin_inertia)
     q0 = _numpy(orientation0_xyzw)
     B = q0.shape[0]
     warm_v, warm_w = _warm_start(warm_start_velocities, B)
@@ -181,6 +182,12 @@ def rollout(
         probability = classifier.predict(cloud, _numpy(lin_vel0).reshape(B, 3), _numpy(ang_vel0).reshape(B, 3), steps)
     return RolloutResult(**states, topple_probability=probability, **deltas, fed_linear_velocity=fed_v,
                          fed_angular_velocity=fed_w)
+
+
+def _if_taken(model: Any, spin_inertia: np.ndarray | None) -> np.ndarray | None:
+    """The bodies' spin inertia for a model that takes it (``DynamicsModel``), None for one that does not:
+    callers pass it always, and a predictor with only ``encode_points(points)`` and ``step`` still works."""
+    return spin_inertia if hasattr(model, "with_spin_inertia") else None
 
 
 def _oriented(points_body: np.ndarray, q0: np.ndarray) -> np.ndarray:
@@ -238,6 +245,7 @@ def teacher_forced(
     models fed their orientation since step 0; spin_inertia (B,) as for ``rollout``. Returns ``delta_*`` (B, S, 3) float64 and
     ``topple_probability`` (B, S) (the predicted label of step t+1) or None.
     """
+    spin_inertia = _if_taken(model, spin_inertia)
     q0 = _numpy(orientation0_xyzw)
     points = world_oriented_points(_numpy(points_body), q0).astype(np.float32)
     turn = None

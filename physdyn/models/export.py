@@ -15,9 +15,9 @@ import sys
 from pathlib import Path
 
 import torch
-import yaml
+from omegaconf import OmegaConf
 
-from physdyn.config import ExperimentConfig, config_from_dict, to_dict
+from physdyn.config import ExperimentConfig, config_from_dict, parse_override, to_dict
 from physdyn.errors import ConfigError, PhysdynError
 from physdyn.files import atomic_output
 from physdyn.models.checkpoint_file import read_checkpoint
@@ -36,14 +36,15 @@ def apply_settings(hyper_parameters: dict, settings: list[str]) -> dict:
     its config, checked as ``physdyn fit`` checks a config. Raises ``ConfigError``."""
     config = dict(hyper_parameters["config"])
     for item in settings:
-        key, sep, value = item.partition("=")
+        key, sep, _ = item.partition("=")
         if not sep or key not in INFERENCE_KEYS:
             raise ConfigError(f"--set {item!r}: use KEY=VALUE with KEY one of {', '.join(INFERENCE_KEYS)}")
+        parsed = OmegaConf.to_container(parse_override(item))  # the value read as `physdyn fit` reads one
         if "." in key:
             section, name = key.split(".")
-            config[section] = {**config[section], name: yaml.safe_load(value)}
+            config[section] = {**config[section], name: parsed[section][name]}
         else:
-            config[key] = value
+            config[key] = parsed[key]
     checked = validate_experiment_config(config_from_dict(ExperimentConfig, config))
     return {**hyper_parameters, "config": to_dict(checked)}
 

@@ -10,7 +10,7 @@ from typing import Any
 
 from omegaconf import OmegaConf
 
-from physdyn.config import ExperimentConfig, to_dict
+from physdyn.config import ExperimentConfig, config_from_dict, to_dict
 from physdyn.errors import PhysdynError
 
 FINISHED = "finished.json"
@@ -83,7 +83,9 @@ def check_resumed_config(cfg: Any, saved_yaml: Path) -> None:
     """Refuse to resume a run with a config that changes what it learns; names the keys that differ."""
     if not saved_yaml.is_file():
         return
-    saved = _flatten(OmegaConf.to_container(OmegaConf.load(saved_yaml)))
+    # Read through the schema: a key added to physdyn since the run started takes its default there too,
+    # so an unchanged config of an older run still resumes.
+    saved = _flatten(to_dict(config_from_dict(type(cfg), OmegaConf.to_container(OmegaConf.load(saved_yaml)), str(saved_yaml))))
     now = _flatten(to_dict(cfg))
     changed = sorted(k for k in set(saved) | set(now)
                      if saved.get(k) != now.get(k) and not k.startswith(RESUMABLE_KEYS))

@@ -20,8 +20,7 @@ from physdyn.config import DataConfig, config_from_dict
 from physdyn.data.store import StoreData
 from physdyn.eval.evaluate import gather_truth, predict_rollouts
 from physdyn.eval.metrics import TOPPLE_THRESHOLD
-from physdyn.geometry.mass import solid_mass_properties
-from physdyn.geometry.mesh_io import prepare_mesh
+from physdyn.sim.body import rigid_body
 from physdyn.sim.generate import build_family, plan, task_streams
 from physdyn.viz.viewer import Trajectory, ViewerScene
 
@@ -52,10 +51,9 @@ def _rebuild_mesh(store: StoreData, shape_id: int, cache: dict) -> Any | None:
             instance = family.make(task.index, np.random.default_rng(task_streams(cfg, task)[0]))
             if instance.source != source:
                 continue
-            prepared = prepare_mesh(instance.mesh, source)
-            mesh = prepared.mesh
-            props = solid_mass_properties(mesh, prepared.watertight, cfg.mass.density, source, cfg.mass.method,
-                                          cfg.mass.voxel_pitch)
+            # the same factory as generation, so the centre of mass matches the stored one
+            body = rigid_body(instance.mesh, source, cfg.mass.density, cfg.mass.method, cfg.mass.voxel_pitch)
+            mesh, props = body.mesh, body.props
         except Exception:  # noqa: BLE001 - a shape that cannot be made again is drawn as its hull
             continue
         if np.linalg.norm(np.asarray(props.com) - store.com_mesh[shape_id]) <= COM_TOLERANCE:

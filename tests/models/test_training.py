@@ -12,6 +12,7 @@ import lightning
 import numpy as np
 import pytest
 import torch
+from omegaconf import OmegaConf
 
 from physdyn.config import ExperimentConfig, PretrainConfig, load_config
 from physdyn.data.datamodule import DynamicsDataModule
@@ -147,6 +148,11 @@ def test_resume_continues_and_finished_runs_are_protected(quickstart_config):
     with pytest.raises(PhysdynError, match=r"--resume: .*model\.prior \('contact' -> 'coulomb'\)") as info:
         fit(quickstart_config("trainer.max_steps=5", "model.prior=coulomb"), resume=True)
     assert "\n" not in str(info.value)
+    # a run saved before a config key existed (here rollout.input_noise, at its default) still resumes
+    saved = OmegaConf.load(first.out_dir / "config.yaml")
+    assert saved.rollout.input_noise == ExperimentConfig().rollout.input_noise
+    del saved.rollout["input_noise"]
+    OmegaConf.save(saved, first.out_dir / "config.yaml")
     resumed = fit(quickstart_config("trainer.max_steps=5"), resume=True)  # training longer may change
     assert resumed.out_dir == first.out_dir
     assert json.loads((first.out_dir / "finished.json").read_text())["global_step"] == 5
@@ -333,7 +339,7 @@ def test_export_keeps_what_prediction_needs_and_nothing_to_resume(quickstart_con
     assert model.config.model.contact_inertia == "body" and model.config.model.residual_gate_linear == 0.2
     assert model.config.name == "shipped"
     torch.testing.assert_close(model.state_dict(), load_checkpoint(slim).state_dict())
-    for bad in ("model.prior=none", "model.contact_inertia=exact", "contact_inertia"):
+    for bad in ("model.prior=none", "model.contact_inertia=exact", "contact_inertia", "model.residual_gate_linear=["):
         with pytest.raises(ConfigError):
             export_checkpoint(full, tmp_path / "bad.ckpt", settings=[bad])
     assert not (tmp_path / "bad.ckpt").exists()
