@@ -2,6 +2,7 @@
 
     python benchmarks/external_meshes.py                              # the bundled model
     python benchmarks/external_meshes.py --checkpoint runs/X/best.ckpt --pushes 10
+    python benchmarks/external_meshes.py --work runs/external_val --random 60 --random-from 30 --no-named   # validation
 
 1. Meshes: the named objects of pybullet_data (bunny, duck, teddy, mug, lego brick, domino, jenga block,
    torus, soccer ball) and its first ``--random`` "random_urdfs" objects (irregular household-like shapes),
@@ -53,11 +54,12 @@ def urdf_scale(urdf: Path) -> float:
     return float(match.group(1)) if match else 1.0
 
 
-def collect_meshes(folder: Path, random_count: int) -> dict[str, float]:
-    """Write the scaled meshes into ``folder``; returns name -> scale applied."""
+def collect_meshes(folder: Path, random_count: int, random_from: int = 0, named: bool = True) -> dict[str, float]:
+    """Write the scaled meshes into ``folder``; returns name -> scale applied. ``random_from``, ``named``:
+    another set of meshes, e.g. random_urdfs 30-89 alone as an external validation set."""
     root = Path(pybullet_data.getDataPath())
-    sources = {name: (root / name, scale) for name, scale in NAMED.items()}
-    for urdf_dir in sorted((root / "random_urdfs").iterdir())[:random_count]:
+    sources = {name: (root / name, scale) for name, scale in NAMED.items()} if named else {}
+    for urdf_dir in sorted((root / "random_urdfs").iterdir())[random_from : random_from + random_count]:
         obj = urdf_dir / f"{urdf_dir.name}.obj"
         sources[f"random_urdfs/{urdf_dir.name}"] = (obj, urdf_scale(urdf_dir / f"{urdf_dir.name}.urdf"))
     folder.mkdir(parents=True, exist_ok=True)
@@ -85,15 +87,20 @@ def main() -> None:
     parser.add_argument("--random", type=int, default=30, help="random_urdfs objects to add to the named ones")
     parser.add_argument("--pushes", type=int, default=10, help="pushes per mesh")
     parser.add_argument("--json", default=None, help="also write the figures here")
+    parser.add_argument("--random-from", type=int, default=0,
+                        help="first random_urdfs object to take (30 with --no-named: a validation set apart from the default's)")
+    parser.add_argument("--no-named", action="store_true", help="leave out the named objects")
     args = parser.parse_args()
     work = Path(args.work)
-    store_path = work / f"external_{args.random}x{args.pushes}.zarr"
+    which = f"external_{args.random}x{args.pushes}" + (f"_from{args.random_from}" if args.random_from else "") + ("_unnamed" if args.no_named else "")
+    store_path = work / f"{which}.zarr"
     try:
         store = load_store(str(store_path))
     except PhysdynError:  # not made yet, or an interrupted run: make it afresh (it is this script's own)
-        collect_meshes(work / "meshes", args.random)
-        cfg = load_config(DataConfig, None, [f"families.meshes.sims_per_shape={args.pushes}",
-                                             f"meshes.dir={work / 'meshes'}"])
+        # another set of meshes gets a folder of its own (a folder is simulated whole)
+        meshes = work / ("meshes" if not (args.random_from or args.no_named) else f"{which}_meshes")
+        collect_meshes(meshes, args.random, args.random_from, not args.no_named)
+        cfg = load_config(DataConfig, None, [f"families.meshes.sims_per_shape={args.pushes}", f"meshes.dir={meshes}"])
         generate_dataset(cfg, str(store_path), workers=2, progress=False, overwrite=True)
         store = load_store(str(store_path))
     predictor = load_predictor(args.checkpoint)
