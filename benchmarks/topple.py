@@ -23,7 +23,8 @@ from physdyn.eval import metrics as M
 from physdyn.eval.baselines import load_checkpoint
 from physdyn.eval.evaluate import evaluate, select_sequences
 from physdyn.predict.predictor import BUNDLED_CHECKPOINT
-from physdyn.models.topple_classifier import FEATURE_NAMES, best_threshold, fit_topple_classifier, store_features
+from physdyn.models.topple_classifier import (FEATURE_NAMES, best_threshold, clipped_scaling, fit_topple_classifier,
+                                              standardise, store_features)
 
 
 def main() -> None:
@@ -93,9 +94,8 @@ def _families(large, x: dict, y: dict) -> list:
 
     train = np.flatnonzero(large.split == 0)
     x_train, y_train = store_features(large, train, None, 0.25, 0), large.toppled[train].astype(int)
-    low, high = np.percentile(x_train, 1, axis=0), np.percentile(x_train, 99, axis=0)
-    mean, std = np.clip(x_train, low, high).mean(axis=0), np.clip(x_train, low, high).std(axis=0) + 1e-9
-    z = lambda a: (np.clip(a, low, high) - mean) / std  # noqa: E731
+    scaling = clipped_scaling(x_train)
+    z = lambda a: standardise(a, **scaling)  # noqa: E731
     rows = []
     for name, clf in (("gradient-boosted trees", HistGradientBoostingClassifier(max_iter=500, learning_rate=0.05, random_state=0)),
                       ("random forest, 300 trees", RandomForestClassifier(300, min_samples_leaf=2, random_state=0)),

@@ -6,8 +6,9 @@ velocities, with no host round-trip. Work is spent on the sequences still moving
 network's changes are not used, so when no topple probabilities are wanted (a model with a topple
 classifier) such a sequence only queues its LSTM input, taken before its next step that needs the network
 (the same states in the same order, as ``SingleRollout`` does); and the contact prior of a body at rest is
-the stop itself, without its sub-steps. In a 3 s roll-out most pushes rest for most steps, which made a
-batch of 256 about 1.8x cheaper (docs/performance.md).
+the stop itself, without its sub-steps (``physdyn.models.priors.contact_changes`` without gradient). In a
+3 s roll-out most pushes rest for most steps, which made a batch of 256 about 1.8x cheaper
+(docs/performance.md).
 """
 
 from __future__ import annotations
@@ -17,7 +18,6 @@ from typing import Any
 import torch
 
 from physdyn.models.predictors.lstm import LSTMPredictor
-from physdyn.models.priors import AT_REST
 from physdyn.models.rotations import quat_multiply, rotvec_to_quat
 
 
@@ -81,7 +81,7 @@ def batch_rollout(model: Any, points: Any, linear_velocity0: Any, angular_veloci
                 features, (h[:, rows], c[:, rows]) = model.predictor(inputs, (h[:, rows], c[:, rows]))
                 net[rows] = model.head(features)[0]
             queued_from = torch.where(~need & (queued_from < 0), t, queued_from)
-        prior = _step_prior(model, v32, w32, q, geometry)
+        prior = model.analytic_prior(v32, w32, q, geometry)
         out = net if prior is None else model.with_residual(net, v32, w32, prior)
         si = out[:, 0].to(f64) * scale + shift
         changes[:, t] = si
@@ -107,18 +107,3 @@ def _take_queued(model: Any, rows: torch.Tensor, t: int, queued_from: torch.Tens
             _, state = model.predictor(inputs[:, k : k + 1], state)
         h[:, group], c[:, group] = state
     queued_from[rows] = -1
-
-def _step_prior(model: Any, v32: torch.Tensor, w32: torch.Tensor, q: torch.Tensor | None,
-                   geometry: torch.Tensor | None) -> torch.Tensor | None:
-    """``_prior`` for one roll-out step (B, 1, ...); the contact prior's stop of a body at rest (below
-    ``AT_REST``) without its sub-steps, as ``SingleRollout`` takes it."""
-    if geometry is None:
-        return model.analytic_prior(v32, w32, q, None)
-    rest = (v32[:, 0, :2].norm(dim=-1) < AT_REST) & (w32[:, 0, 2].abs() < AT_REST)
-    if not rest.any():
-        return model.analytic_prior(v32, w32, q, geometry)
-    prior = torch.cat([-v32, -w32, torch.zeros_like(v32), torch.zeros_like(w32)], dim=-1)
-    rows = (~rest).nonzero()[:, 0]
-    if len(rows):
-        prior[rows] = model.analytic_prior(v32[rows], w32[rows], None if q is None else q[rows], geometry[rows])
-    return prior

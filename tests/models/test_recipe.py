@@ -285,6 +285,29 @@ def test_the_one_object_contact_prior_is_the_tensor_one_to_rounding():
         assert one.dtype == torch.float64 and one.shape == (1, 1, 12)
 
 
+def test_without_gradient_the_contact_prior_stops_resting_pairs_and_substeps_the_rest():
+    # Roll-outs and evaluation (no gradient): (sequence, step) pairs at rest are stopped at once, the others
+    # take the sub-steps as training does, each as if alone.
+    from physdyn.models.priors import contact_changes, contact_geometry
+
+    torch.manual_seed(1)
+    points = torch.randn(3, 128, 3, dtype=torch.float64) * torch.tensor([0.08, 0.05, 0.1], dtype=torch.float64)
+    geometry = contact_geometry(points)
+    v = torch.randn(3, 2, 3, dtype=torch.float64)
+    w = torch.randn(3, 2, 3, dtype=torch.float64) * 3.0
+    q = torch.randn(3, 2, 4, dtype=torch.float64)
+    q = q / q.norm(dim=-1, keepdim=True)
+    resting = torch.tensor([[True, False], [False, False], [False, True]])
+    v[resting], w[resting] = v[resting] * 1e-10, w[resting] * 1e-10
+    with torch.no_grad():
+        fast = contact_changes(v, w, q, geometry, 1 / 15, 0.25)
+    full = contact_changes(v, w, q, geometry, 1 / 15, 0.25)  # with gradient: the sub-steps everywhere
+    stop = torch.cat([-v, -w, torch.zeros_like(v), torch.zeros_like(w)], dim=-1)
+    torch.testing.assert_close(fast[resting], stop[resting], rtol=0, atol=0)
+    torch.testing.assert_close(fast[~resting], full[~resting], rtol=0, atol=1e-12)
+    assert (full[~resting].abs() > 1e-3).any()  # the moving pairs did move
+
+
 def test_a_body_at_rest_on_a_far_contact_stays_at_rest():
     # One support point 0.16 m from the vertical through the centre of mass, spin inertia a quarter of its
     # r^2: friction's stick regime used to overshoot and swap slide and spin, growing x4 per two sub-steps.
