@@ -65,7 +65,6 @@ def batch_rollout(model: Any, points: Any, linear_velocity0: Any, angular_veloci
         if turns is not None:
             turns[:, t] = q[:, 0]
         moving = model.rest_gate(v32, w32)
-        net = torch.zeros(B, 1, 12, device=device)
         if not skip:
             inputs = model.network_inputs(feature, v32, w32, q)
             features, state = model.predictor(inputs, state)
@@ -75,6 +74,7 @@ def batch_rollout(model: Any, points: Any, linear_velocity0: Any, angular_veloci
         else:
             need = torch.ones(B, dtype=torch.bool, device=device) if moving is None else moving[:, 0]
             rows = need.nonzero()[:, 0]
+            net = torch.zeros(B, 1, 12, device=device)
             if len(rows):
                 _take_queued(model, rows, t, queued_from, feature, fed, turns, h, c)
                 inputs = model.network_inputs(feature[rows], v32[rows], w32[rows], None if q is None else q[rows])
@@ -82,7 +82,7 @@ def batch_rollout(model: Any, points: Any, linear_velocity0: Any, angular_veloci
                 net[rows] = model.head(features)[0]
             queued_from = torch.where(~need & (queued_from < 0), t, queued_from)
         prior = model.analytic_prior(v32, w32, q, geometry)
-        out = net if prior is None else model.with_residual(net, v32, w32, prior)
+        out = net if prior is None else model.with_residual(net, prior, moving)
         si = out[:, 0].to(f64) * scale + shift
         changes[:, t] = si
         if turn is not None:  # R_{t+1} R_0^T = Exp(dtheta_t) R_t R_0^T, as the pose is integrated
@@ -91,6 +91,7 @@ def batch_rollout(model: Any, points: Any, linear_velocity0: Any, angular_veloci
         v = v + si[:, 0:3]
         w = w + si[:, 3:6]
     return {"changes": changes, "fed": fed, "topple_probability": topple_out}
+
 
 def _take_queued(model: Any, rows: torch.Tensor, t: int, queued_from: torch.Tensor, feature: torch.Tensor,
                  fed: torch.Tensor, turns: torch.Tensor | None, h: torch.Tensor, c: torch.Tensor) -> None:

@@ -181,7 +181,7 @@ class DynamicsModel(LightningModule):
         changes, logit = self.head(features)
         prior = self.analytic_prior(linear_velocity, angular_velocity, orientation, geometry)
         if prior is not None:  # the network predicts the residual to the analytic prior
-            changes = self.with_residual(changes, linear_velocity, angular_velocity, prior)
+            changes = self.with_residual(changes, prior, self.rest_gate(linear_velocity, angular_velocity))
         return changes, logit, state
 
     def split_code(self, code: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
@@ -220,10 +220,9 @@ class DynamicsModel(LightningModule):
         return ((linear_velocity[..., :2].norm(dim=-1) > m.residual_gate_linear)
                 | (angular_velocity.norm(dim=-1) > m.residual_gate_angular))
 
-    def with_residual(self, changes: torch.Tensor, linear_velocity: torch.Tensor, angular_velocity: torch.Tensor,
-                  prior: torch.Tensor) -> torch.Tensor:
-        """The network's normalised changes as a residual on the prior's (SI): their sum, normalised."""
-        moving = self.rest_gate(linear_velocity, angular_velocity)
+    def with_residual(self, changes: torch.Tensor, prior: torch.Tensor, moving: torch.Tensor | None) -> torch.Tensor:
+        """The network's normalised changes as a residual on the prior's (SI): their sum, normalised.
+        ``moving``: ``rest_gate`` of the velocities fed (None: no gate)."""
         if moving is not None:
             # Near rest the prior's stop is exact (below 0.1 m/s a slide ends within one 1/15 s step)
             # and the residual only adds drift: below both speeds the prediction is the prior's.
