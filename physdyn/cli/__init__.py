@@ -8,7 +8,9 @@ or an operating-system error (a missing, unwritable or full place) becomes one l
 
 Every subcommand module is imported to build the parser, so they import the library inside their handlers:
 ``physdyn --help`` and argument errors answer in a third of a second instead of loading torch, Lightning,
-PyBullet and trimesh first.
+PyBullet and trimesh first. At their top they import only what building the parser loads anyway: the standard
+library, this package's helpers, ``physdyn.errors``, ``physdyn.data``'s constants and ``physdyn.config``
+(omegaconf: mocap's defaults and reproduce's list of experiments need it).
 """
 
 from __future__ import annotations

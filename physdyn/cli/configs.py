@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from physdyn.config import PRESETS, list_presets
+
 # Handlers import the library themselves, so `physdyn --help` stays light (see physdyn/cli/__init__.py).
 
 ORDER = 95
@@ -30,8 +32,6 @@ USED_BY = {"data": "physdyn simulate --config NAME", "experiment": "physdyn fit 
 
 
 def run(args: argparse.Namespace) -> int:
-    from physdyn.config import PRESETS, list_presets
-
     if args.path:
         print(PRESETS.resolve())
         return 0

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 
+from physdyn.cli import split_overrides
+from physdyn.config import preset_path
+
 # Handlers import the library themselves, so `physdyn --help` stays light (see physdyn/cli/__init__.py).
 
 ORDER = 30
@@ -37,17 +40,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from physdyn.cli import split_overrides
+    from physdyn.models.run_directory import is_global_zero_process
     from physdyn.models.training import fit, load_experiment_config
 
     if args.resume and args.overwrite:
         args.parser.error("--resume and --overwrite exclude each other")
-    from physdyn.config import preset_path
-
     config = load_experiment_config(args.config and preset_path(args.config, "experiment"), split_overrides(args.parser, args))
     result = fit(config, resume=args.resume, overwrite=args.overwrite)
-    from physdyn.models.run_directory import is_global_zero_process
-
     if is_global_zero_process():
         best = result.metrics.get("best_val_loss")
         print(f"physdyn fit: results in {result.out_dir}")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from physdyn.config import MassConfig  # the datasets' density is the default here too
 from physdyn.errors import PhysdynError
 
 # Handlers import the library themselves, so `physdyn --help` stays light (see physdyn/cli/__init__.py).
@@ -12,8 +13,6 @@ ORDER = 15
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from physdyn.config import MassConfig  # the datasets' density is the default here too
-
     p = sub.add_parser(
         "import-mocap",
         help="import motion-capture trials (CSV) into a dataset store",

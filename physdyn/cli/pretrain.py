@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 
+from physdyn.cli import split_overrides
+from physdyn.config import preset_path
+
 # Handlers import the library themselves, so `physdyn --help` stays light (see physdyn/cli/__init__.py).
 
 ORDER = 29
@@ -34,11 +37,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from physdyn.cli import split_overrides
     from physdyn.models.pretrain import load_pretrain_config, pretrain
     from physdyn.models.run_directory import is_global_zero_process
-
-    from physdyn.config import preset_path
 
     config = load_pretrain_config(args.config and preset_path(args.config, "experiment"), split_overrides(args.parser, args))
     result = pretrain(config, overwrite=args.overwrite)

@@ -7,6 +7,7 @@ import shlex
 import sys
 
 from physdyn.errors import PhysdynError
+from physdyn.experiments.suite import EXPERIMENT_HELP
 
 # Handlers import the library themselves, so `physdyn --help` stays light (see physdyn/cli/__init__.py).
 
@@ -25,8 +26,6 @@ details: docs/reproduce.md
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from physdyn.experiments.suite import EXPERIMENT_HELP
-
     listing = "\n".join(f"  {name:<14} {text}" for name, text in EXPERIMENT_HELP.items())
     p = sub.add_parser(
         "reproduce",

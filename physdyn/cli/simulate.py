@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import os
 
+from physdyn.cli import split_overrides
+from physdyn.config import DataConfig, load_config, preset_path
 from physdyn.errors import ConfigError
 
 # Handlers import the library themselves, so `physdyn --help` stays light (see physdyn/cli/__init__.py).
@@ -50,8 +52,6 @@ def clamp_workers(workers: int, local: bool = True) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from physdyn.cli import split_overrides
-    from physdyn.config import DataConfig, load_config, preset_path
     from physdyn.data.simulated_store import generate_dataset
 
     cfg = load_config(DataConfig, preset_path(args.config, "data"), split_overrides(args.parser, args))

@@ -87,9 +87,9 @@ def _find_mesh(recorded: str, prediction: Path) -> Path | None:
 
 
 def _from_predictions(args: argparse.Namespace) -> Path:
+    from physdyn.geometry.mesh_io import load_mesh
     from physdyn.predict.prediction_files import read_prediction
     from physdyn.viz.viewer import check_viewer_path, scene_from_prediction, write_viewer
-    from physdyn.geometry.mesh_io import load_mesh
 
     files = [Path(s) for s in args.source]
     if args.out is None and len(files) > 1:
