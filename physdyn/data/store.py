@@ -21,6 +21,7 @@ from typing import Iterable
 import fsspec
 import numpy as np
 import zarr
+from zarr.core.sync import sync  # zarr's internal API, for a store's repair path (_delete)
 
 from physdyn.data import SPLIT_NAMES  # noqa: F401 - re-exported: readers import it from here
 from physdyn.errors import StoreError
@@ -199,8 +200,6 @@ class StoreWriter:
             if name in self.group:
                 del self.group[name]
         except Exception:  # unreadable metadata: remove the node's keys directly
-            from zarr.core.sync import sync  # zarr's internal API, on this repair path only
-
             sync(self.group.store.delete_dir(name))
 
     def write_block(self, block: int, arrays: dict[str, np.ndarray], attrs: dict | None = None) -> None:

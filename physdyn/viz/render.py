@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 import trimesh
+from PIL import Image
 
 from physdyn.errors import PhysdynError
 from physdyn.files import atomic_output
@@ -100,12 +101,11 @@ def render_animation(mesh: Any, result: dict[str, Any], path: str | Path, fps: f
     step. With ``result["simulated"]`` the prediction and the simulation are drawn side by side. Each
     panel shows the ground, the trail of the centre of mass and the time.
     """
-    import matplotlib  # heavy (~0.4 s), with PIL: loaded when an animation is drawn
+    import matplotlib  # heavy (~0.4 s): loaded when an animation is drawn
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
-    from PIL import Image
 
     path = check_animation_path(path, overwrite)
     if path.suffix.lower() == ".html":
@@ -178,8 +178,6 @@ def render_animation(mesh: Any, result: dict[str, Any], path: str | Path, fps: f
 
 
 def _write(images: list, path: Path, fps: float) -> None:
-    from PIL import Image  # with matplotlib, loaded when an animation is written
-
     with atomic_output(path, suffix=path.suffix) as tmp:
         if path.suffix.lower() == ".gif":
             palette = images[0].quantize(colors=128, method=Image.Quantize.MEDIANCUT)

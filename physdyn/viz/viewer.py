@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
+from plotly.offline import get_plotlyjs
 
 from physdyn.errors import PhysdynError
 from physdyn.files import atomic_output
@@ -144,8 +145,6 @@ def check_viewer_path(path: str | Path, overwrite: bool = False) -> Path:
 
 def viewer_html(scenes: Sequence[ViewerScene], title: str = "physdyn viewer") -> str:
     """The page's text: plotly.js, our script and the scenes' data, all inline."""
-    from plotly.offline import get_plotlyjs  # heavy: loaded when a page is written
-
     if not scenes:
         raise ViewerError("a viewer page needs at least one scene")
     data = json.dumps({"title": title, "scenes": [s.as_json() for s in scenes]}, separators=(",", ":"))
