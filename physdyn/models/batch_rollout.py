@@ -2,7 +2,8 @@
 the one-object roll-out (``physdyn.models.single_rollout``) does not cover.
 
 One shape encoding per distinct cloud, then one network step per recorded step on the model's own
-velocities, with no host round-trip. Work is spent on the sequences still moving: below the rest gate the
+velocities, without numpy between steps (choosing the moving rows does read a few flags back from the
+device each step; on a GPU that costs a synchronisation, not yet measured). Work is spent on the sequences still moving: below the rest gate the
 network's changes are not used, so when no topple probabilities are wanted (a model with a topple
 classifier) such a sequence only queues its LSTM input, taken before its next step that needs the network
 (the same states in the same order, as ``SingleRollout`` does); and the contact prior of a body at rest is

@@ -277,7 +277,7 @@ class DynamicsModel(LightningModule):
                         warm_angular: torch.Tensor | None = None, spin_inertia: Any = None,
                         topple: bool = True) -> dict[str, torch.Tensor | None]:
         """A whole roll-out in torch, in eval and inference mode: one shape encoding, then ``steps`` calls of
-        the network on its own velocities, with no host round-trip per step.
+        the network on its own velocities, without numpy between steps (physdyn.models.batch_rollout).
 
         points (B, N, 3) world-oriented body frame of step 0; linear/angular_velocity0 (B, 3) SI; warm_*
         (B, K, 3): the true velocities of steps 1..K, fed instead of the model's own; spin_inertia (B,) as for

@@ -89,6 +89,8 @@ def topple_features(points: np.ndarray, linear_velocity: np.ndarray, angular_vel
     points = np.asarray(points, np.float64)
     v0 = np.asarray(linear_velocity, np.float64).reshape(-1, 3)
     w0 = np.asarray(angular_velocity, np.float64).reshape(-1, 3)
+    if not len(points):
+        return np.empty((0, len(FEATURE_NAMES)))
     groups: dict[bytes, int] = {}
     which = np.array([groups.setdefault(P.tobytes(), len(groups)) for P in points], dtype=np.int64)
     firsts = np.unique(which, return_index=True)[1]

@@ -36,14 +36,19 @@ def test_a_batch_of_pushes_over_a_few_clouds_gives_each_push_its_own_features():
     rng = np.random.default_rng(0)
     box = sample_surface_points(trimesh.creation.box((0.2, 0.3, 0.4)), 512, 3, seed=0)
     cylinder = sample_surface_points(trimesh.creation.cylinder(0.05, 0.3), 512, 3, seed=1)
-    edge = box @ trimesh.transformations.rotation_matrix(np.pi / 4, [0, 1, 0])[:3, :3].T  # no footprint area
-    clouds = np.stack([box, cylinder, edge, box, cylinder, edge, box])
+    edge = box @ trimesh.transformations.rotation_matrix(np.pi / 4, [0, 1, 0])[:3, :3].T  # a thin strip
+    turn = trimesh.transformations.rotation_matrix(np.pi / 4, [1, 0, 0]) @ trimesh.transformations.rotation_matrix(0.6, [0, 1, 0])
+    corner = box @ turn[:3, :3].T  # on a corner: no footprint hull, every edge distance 0
+    clouds = np.stack([box, cylinder, edge, box, cylinder, corner, box])
     v, w = rng.normal(size=(7, 3)), rng.normal(size=(7, 3))
     w[3] = 0.0  # no tilt spin: the tipping direction falls back to +x
     batch = topple_features(clouds, v, w)
     alone = np.concatenate([topple_features(clouds[i : i + 1], v[i : i + 1], w[i : i + 1]) for i in range(7)])
     np.testing.assert_allclose(batch, alone, rtol=1e-12, atol=1e-12)
-    assert len(np.unique(batch[:, FEATURE_NAMES.index("foot_area")])) == 3 and np.isfinite(batch).all()
+    assert len(np.unique(batch[:, FEATURE_NAMES.index("foot_area")])) == 4 and np.isfinite(batch).all()
+    assert batch[5, FEATURE_NAMES.index("foot_area")] == 0.0
+    assert all(batch[5, FEATURE_NAMES.index(k)] == 0.0 for k in ("edge_travel", "edge_back", "edge_tip"))
+    assert topple_features(clouds[:0], v[:0], w[:0]).shape == (0, len(FEATURE_NAMES))  # no pushes, no rows
 
 
 def test_logistic_regression_and_threshold_recover_a_known_rule():
