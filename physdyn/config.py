@@ -378,6 +378,9 @@ class TrainDataConfig:
     normalization: str = "max"
     # Share of training windows that start at step 0, as every roll-out does (the rest start at random).
     first_window_fraction: float = 0.0
+    # Turn each training window about the vertical by a random angle (points, velocities, changes and
+    # orientations alike): the physics does not depend on the heading, the network has to learn that.
+    yaw_augment: bool = False
 
 
 @dataclass

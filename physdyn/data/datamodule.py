@@ -20,7 +20,7 @@ from physdyn.data import SPLITS
 from physdyn.config import TrainDataConfig
 from physdyn.data.normalization import Normalization, compute_normalization
 from physdyn.data.store import StoreData, load_store
-from physdyn.data.windows import WindowSource, subsample_indices
+from physdyn.data.windows import WindowSource, subsample_indices, turned_about_vertical
 from physdyn.errors import ConfigError
 
 
@@ -71,9 +71,10 @@ class WindowCollate:
     """
 
     def __init__(self, source: WindowSource, num_points: int | None, fixed_seed: int | None = None,
-                 first_window_fraction: float = 0.0):
+                 first_window_fraction: float = 0.0, yaw_augment: bool = False):
         self.source = source
         self.first_window_fraction = first_window_fraction
+        self.yaw_augment = yaw_augment
         self.num_points = num_points
         self.fixed_seed = fixed_seed
         self._rng: np.random.Generator | None = None
@@ -106,6 +107,8 @@ class WindowCollate:
                     [subsample_indices(n_avail, self.num_points, np.random.default_rng([self.fixed_seed, it[2]]), 1)[0] for it in items]
                 )
         batch = self.source.gather(sims, starts, index)
+        if self.yaw_augment and self.fixed_seed is None:
+            batch = turned_about_vertical(batch, rng.uniform(0.0, 2 * np.pi, len(sims)))
         return {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in batch.items()}
 
 
@@ -207,7 +210,8 @@ class DynamicsDataModule(LightningDataModule):
         # Batch norm cannot train on a batch of one: drop a last batch of a single window (and only that, so
         # an epoch otherwise sees every training simulation once).
         drop = len(ds) > self.config.batch_size and len(ds) % self.config.batch_size == 1
-        collate = WindowCollate(self.source, self.config.num_points, first_window_fraction=self.config.first_window_fraction)
+        collate = WindowCollate(self.source, self.config.num_points, first_window_fraction=self.config.first_window_fraction,
+                                yaw_augment=self.config.yaw_augment)
         return self._loader(ds, collate, True, drop)
 
     def val_dataloader(self) -> DataLoader:

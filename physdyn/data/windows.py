@@ -85,6 +85,28 @@ def store_spin_inertia(store: StoreData, sims: np.ndarray, orientation_xyzw: np.
     return vertical_inertia(store.inertia_diag[shapes], axes, store.mass[shapes], orientation_xyzw)
 
 
+def turned_about_vertical(batch: dict[str, np.ndarray], yaw: np.ndarray) -> dict[str, np.ndarray]:
+    """A batch of ``WindowSource.gather`` turned about the world vertical by ``yaw`` (B,) radians: the same
+    windows pushed in other directions. Points, velocities and changes (rotation vectors included) turn as
+    vectors; the pose at the first step turns with the world, rotations since it are conjugated."""
+
+    c, s = np.cos(yaw), np.sin(yaw)
+    R = np.zeros((len(yaw), 3, 3))
+    R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = c, -s, s, c, 1.0
+    turn = np.zeros((len(yaw), 4))
+    turn[:, 2], turn[:, 3] = np.sin(yaw / 2), np.cos(yaw / 2)
+    out = dict(batch)
+    for key in ("points", "linear_velocity", "angular_velocity", "delta_linear_velocity", "delta_angular_velocity",
+                "delta_position", "delta_rotation"):
+        out[key] = np.einsum("bij,b...j->b...i", R, batch[key]).astype(batch[key].dtype)
+    out["com_position0"] = np.einsum("bij,bj->bi", R, batch["com_position0"])
+    out["orientation0_xyzw"] = quat_multiply(turn, batch["orientation0_xyzw"])
+    rel = batch["relative_orientation_xyzw"]
+    turn_t = np.broadcast_to(turn[:, None, :], rel.shape)
+    out["relative_orientation_xyzw"] = quat_multiply(quat_multiply(turn_t, rel), quat_conjugate(turn_t)).astype(rel.dtype)
+    return out
+
+
 def subsample_indices(num_available: int, num_points: int | None, rng: np.random.Generator, batch: int) -> np.ndarray | None:
     """(batch, num_points) random point indices without replacement, or None to keep every point."""
     if num_points is None or num_points >= num_available:

@@ -12,11 +12,12 @@ import torch
 from physdyn.data.datamodule import DynamicsDataModule
 from physdyn.data.normalization import compute_normalization
 from physdyn.data.store import load_store
-from physdyn.data.windows import frame_targets
+from physdyn.data.windows import WindowSource, frame_targets, turned_about_vertical
 from physdyn.errors import ConfigError
 from physdyn.eval.baselines import coulomb_slide
 from physdyn.eval.evaluate import evaluate, gather_truth
 from physdyn.eval.rollout import rollout, teacher_forced
+from physdyn.geometry.rotations import quat_to_matrix
 from physdyn.models.dynamics_module import DynamicsModel
 from physdyn.models.rotations import rotation_6d
 from physdyn.models.priors import contact_changes, contact_geometry, prior_changes
@@ -37,6 +38,7 @@ LEVERS = [
     ["model.prior=contact", "model.orientation_input=true", "rollout.feedback=1.0", "loss.kind=huber"],
     ["model.prior=contact", "model.orientation_input=true", "model.contact_inertia=body"],
     ["model.prior=planar", "model.residual_gate_linear=0.1", "model.residual_gate_angular=1.0"],
+    ["model.prior=contact", "model.orientation_input=true", "data.yaw_augment=true"],
 ]
 
 
@@ -340,3 +342,50 @@ def test_the_footprint_does_not_depend_on_the_order_of_the_cloud():
     K = (geometry.shape[1] - 2) // 4
     support = geometry[0, : 3 * K].reshape(K, 3)
     assert float(support[:, :2].abs().max()) > 0.05  # it spans the base, out to its corners
+
+
+def test_a_turned_window_is_the_same_push_in_another_direction(store):
+    """data.yaw_augment: the turned batch's orientations turn its turned points as the original's turn the
+    original points, its changes are the original's turned, and the contact prior's changes turn with it."""
+    source = WindowSource(store, 6, 128)
+    sims = np.flatnonzero(store.split == 0)[:6]
+    batch = source.gather(sims, np.zeros(len(sims), np.int64), None)
+    yaw = np.linspace(0.4, 5.9, len(sims))
+    turned = turned_about_vertical(batch, yaw)
+    c, s = np.cos(yaw), np.sin(yaw)
+    Z = np.zeros((len(yaw), 3, 3))
+    Z[:, 0, 0], Z[:, 0, 1], Z[:, 1, 0], Z[:, 1, 1], Z[:, 2, 2] = c, -s, s, c, 1.0
+    turn = lambda x: np.einsum("bij,b...j->b...i", Z, x)  # noqa: E731
+    for key in ("linear_velocity", "angular_velocity", "delta_position", "delta_rotation", "points"):
+        np.testing.assert_allclose(turned[key], turn(batch[key]), atol=1e-6)
+    for t in (1, 5):
+        R = quat_to_matrix(batch["relative_orientation_xyzw"][:, t].astype(np.float64))
+        Rt = quat_to_matrix(turned["relative_orientation_xyzw"][:, t].astype(np.float64))
+        np.testing.assert_allclose(np.einsum("bij,bnj->bni", Rt, turned["points"]),
+                                   turn(np.einsum("bij,bnj->bni", R, batch["points"])), atol=1e-5)
+    assert not np.allclose(turned["linear_velocity"], batch["linear_velocity"], atol=1e-3)  # it did turn
+
+    def prior(b):
+        with torch.no_grad():
+            return contact_changes(torch.tensor(b["linear_velocity"]), torch.tensor(b["angular_velocity"]),
+                                   torch.tensor(b["relative_orientation_xyzw"]), contact_geometry(torch.tensor(b["points"])),
+                                   1 / 15, 0.25).numpy()
+    before, after = prior(batch), prior(turned)
+    for k in range(4):
+        np.testing.assert_allclose(after[..., 3 * k : 3 * k + 3], turn(before[..., 3 * k : 3 * k + 3]), atol=1e-4)
+
+
+def test_yaw_augment_turns_training_windows_only(quickstart_config):
+    cfg = quickstart_config("data.yaw_augment=true", "data.first_window_fraction=1.0")
+    dm = DynamicsDataModule(cfg.data)
+    dm.setup("fit")
+    torch.manual_seed(0)
+    train = next(iter(dm.train_dataloader()))
+    sims = train["sim"].numpy()
+    plain = dm.source.gather(sims, train["start"].numpy(), None)
+    speed = lambda v: np.linalg.norm(np.asarray(v)[..., :2], axis=-1)  # noqa: E731
+    np.testing.assert_allclose(speed(train["linear_velocity"]), speed(plain["linear_velocity"]), rtol=1e-5, atol=1e-6)
+    assert not np.allclose(np.asarray(train["linear_velocity"]), plain["linear_velocity"], atol=1e-3)
+    val = next(iter(dm.val_dataloader()))
+    again = dm.source.gather(val["sim"].numpy(), val["start"].numpy(), None)
+    np.testing.assert_allclose(np.asarray(val["linear_velocity"]), again["linear_velocity"])
