@@ -1,0 +1,77 @@
+"""The contact prior's footprint read from the cloud's convex-hull facet under the centre of mass (the face
+the simulator's convex-hull collision shape rests on): the points within TOL metres of that facet's plane,
+instead of the points within 5 mm of the lowest one. Patches ``contact_geometry`` for this run only.
+
+    python benchmarks/studies/footprint_facet.py 0.001 val       # the bundled model, quickstart validation split
+    python benchmarks/studies/footprint_facet.py 0.001 prior-val # the contact prior alone
+    python benchmarks/studies/footprint_facet.py 0.001 ext       # benchmarks/external_meshes.py's meshes
+    python benchmarks/studies/footprint_facet.py 0.001 extval    # its validation set (--random 60 --random-from 30 --no-named)
+"""
+import sys, torch, numpy as np
+from scipy.spatial import ConvexHull, QhullError
+import physdyn.models.priors as pri
+TOL = float(sys.argv[1]); which = sys.argv[2]
+def touching_mask(P):  # P (N, 3) numpy
+    z = P[:, 2]; band = z <= z.min() + pri.SUPPORT_DEPTH
+    try:
+        hull = ConvexHull(P)
+    except QhullError:
+        return band
+    eq = hull.equations  # n . x + c <= 0 inside; n outward
+    best = None
+    for k in np.flatnonzero(eq[:, 2] < -0.5):
+        n, c = eq[k, :3], eq[k, 3]
+        t = -c / n[2]  # the vertical through the COM meets the plane at z = t (x = y = 0)
+        tri = P[hull.simplices[k]]
+        # inside the triangle, in the xy projection
+        a, b, cc = tri[:, :2]; p = np.zeros(2)
+        v0, v1, v2 = b - a, cc - a, p - a
+        d = v0[0] * v1[1] - v1[0] * v0[1]
+        if abs(d) < 1e-15: continue
+        u = (v2[0] * v1[1] - v1[0] * v2[1]) / d; w = (v0[0] * v2[1] - v2[0] * v0[1]) / d
+        if u >= -1e-9 and w >= -1e-9 and u + w <= 1 + 1e-9:
+            if best is None or t < best[0]: best = (t, n, c)
+    if best is None:
+        return band
+    _, n, c = best
+    return (P @ n + c) >= -TOL
+orig = pri.contact_geometry
+def patched(points):
+    B, N, _ = points.shape
+    k = min(pri.SUPPORT_POINTS, N)
+    z = points[..., 2]; zmin = z.min(dim=1, keepdim=True).values
+    touching = torch.from_numpy(np.stack([touching_mask(p) for p in points.detach().cpu().numpy().astype(np.float64)])).to(points.device)
+    xy = points[..., :2]
+    distance = torch.where(touching, torch.full_like(z, float("inf")), torch.full_like(z, -1.0))
+    pick = torch.argmax(((xy ** 2).sum(-1)).masked_fill(~touching, -1.0), dim=1)
+    chosen, fresh = [], []
+    for i in range(k):
+        chosen.append(pick)
+        gained = torch.gather(distance, 1, pick[:, None])[:, 0]
+        fresh.append(gained > 0 if i else torch.ones_like(gained, dtype=torch.bool))
+        here = torch.gather(xy, 1, pick[:, None, None].expand(-1, 1, 2))
+        distance = torch.minimum(distance, ((xy - here) ** 2).sum(-1).masked_fill(~touching, -1.0))
+        pick = torch.argmax(distance, dim=1)
+    index = torch.stack(chosen, dim=1)
+    support = torch.gather(points, 1, index[..., None].expand(-1, -1, 3))
+    weights = torch.stack(fresh, dim=1).to(points.dtype); weights = weights / weights.sum(dim=1, keepdim=True)
+    spin_inertia = pri.SPIN_INERTIA * (points[..., :2] ** 2).sum(-1).mean(dim=1, keepdim=True)
+    return torch.cat([support.reshape(B, -1), weights, spin_inertia.clamp_min(1e-8), -zmin], dim=1)
+pri.contact_geometry = patched
+import physdyn.models.dynamics_module as dm
+dm.contact_geometry = patched
+if which in ("val", "test", "prior-val", "prior-test"):
+    from physdyn.eval.evaluate import evaluate
+    from physdyn.predict.predictor import BUNDLED_CHECKPOINT
+    split = which.split("-")[-1]
+    if which.startswith("prior"):
+        sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parents[1])); from priors import prior_only_model; from physdyn.data.store import load_store
+        st = load_store("data/quickstart.zarr"); m = prior_only_model("contact", st)
+    else:
+        m = str(BUNDLED_CHECKPOINT); st = "data/quickstart.zarr"
+    h = evaluate(m, st, split=split)["headline"]
+    print(f"TOL={TOL} {which}: {100*h['final_position_m_median']:.2f} cm {h['final_rotation_deg_median']:.1f} deg")
+else:
+    sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parents[1])); import external_meshes as em
+    sys.argv = ["x"] + (["--work", "runs/external_val", "--random", "60", "--random-from", "30", "--no-named"] if which == "extval" else [])
+    print(f"TOL={TOL} {which}"); em.main()
