@@ -37,26 +37,8 @@ def touching_mask(P):  # P (N, 3) numpy
     return (P @ n + c) >= -TOL
 orig = pri.contact_geometry
 def patched(points):
-    B, N, _ = points.shape
-    k = min(pri.SUPPORT_POINTS, N)
-    z = points[..., 2]; zmin = z.min(dim=1, keepdim=True).values
-    touching = torch.from_numpy(np.stack([touching_mask(p) for p in points.detach().cpu().numpy().astype(np.float64)])).to(points.device)
-    xy = points[..., :2]
-    distance = torch.where(touching, torch.full_like(z, float("inf")), torch.full_like(z, -1.0))
-    pick = torch.argmax(((xy ** 2).sum(-1)).masked_fill(~touching, -1.0), dim=1)
-    chosen, fresh = [], []
-    for i in range(k):
-        chosen.append(pick)
-        gained = torch.gather(distance, 1, pick[:, None])[:, 0]
-        fresh.append(gained > 0 if i else torch.ones_like(gained, dtype=torch.bool))
-        here = torch.gather(xy, 1, pick[:, None, None].expand(-1, 1, 2))
-        distance = torch.minimum(distance, ((xy - here) ** 2).sum(-1).masked_fill(~touching, -1.0))
-        pick = torch.argmax(distance, dim=1)
-    index = torch.stack(chosen, dim=1)
-    support = torch.gather(points, 1, index[..., None].expand(-1, -1, 3))
-    weights = torch.stack(fresh, dim=1).to(points.dtype); weights = weights / weights.sum(dim=1, keepdim=True)
-    spin_inertia = pri.SPIN_INERTIA * (points[..., :2] ** 2).sum(-1).mean(dim=1, keepdim=True)
-    return torch.cat([support.reshape(B, -1), weights, spin_inertia.clamp_min(1e-8), -zmin], dim=1)
+    masks = np.stack([touching_mask(p) for p in points.detach().cpu().numpy().astype(np.float64)])
+    return orig(points, torch.from_numpy(masks).to(points.device))
 pri.contact_geometry = patched
 import physdyn.models.dynamics_module as dm
 dm.contact_geometry = patched

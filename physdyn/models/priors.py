@@ -78,15 +78,17 @@ def prior_changes(kind: str, linear_velocity: torch.Tensor, angular_velocity: to
                       dp_xy, torch.zeros_like(speed), torch.zeros_like(u), wz * tau - wz * tau * tau / (2 * t_stop)], dim=-1)
 
 
-def contact_geometry(points: torch.Tensor) -> torch.Tensor:
+def contact_geometry(points: torch.Tensor, touching: torch.Tensor | None = None) -> torch.Tensor:
     """points (B, N, 3) world-oriented body frame (centre of mass at the origin), metres ->
     (B, 4 * K + 2): the K lowest points' offsets (K x 3), their weights (K, summing to 1), I_zz / m, and
-    the height of the centre of mass above the lowest point."""
+    the height of the centre of mass above the lowest point. ``touching`` (B, N) bool: the points that may
+    carry the weight (default: within SUPPORT_DEPTH of the lowest; studies try other footprints)."""
     B, N, _ = points.shape
     k = min(SUPPORT_POINTS, N)
     z = points[..., 2]
     zmin = z.min(dim=1, keepdim=True).values
-    touching = z <= zmin + SUPPORT_DEPTH
+    if touching is None:
+        touching = z <= zmin + SUPPORT_DEPTH
     # K touching points spread over the footprint by farthest-point sampling in the plane, so a large flat
     # face keeps its extent and its centre. It starts from the touching point farthest from the vertical
     # through the centre of mass, so the same cloud listed in another order gets the same footprint.

@@ -389,3 +389,16 @@ def test_yaw_augment_turns_training_windows_only(quickstart_config):
     val = next(iter(dm.val_dataloader()))
     again = dm.source.gather(val["sim"].numpy(), val["start"].numpy(), None)
     np.testing.assert_allclose(np.asarray(val["linear_velocity"]), again["linear_velocity"])
+
+
+def test_the_footprint_can_be_given_and_defaults_to_the_lowest_points():
+    rng = np.random.default_rng(3)
+    points = torch.tensor(rng.uniform(-0.1, 0.1, (2, 200, 3)), dtype=torch.float32)
+    z = points[..., 2]
+    lowest = z <= z.min(dim=1, keepdim=True).values + 0.005
+    torch.testing.assert_close(contact_geometry(points, lowest), contact_geometry(points))
+    mine = torch.zeros_like(lowest)
+    mine[:, :3] = True  # three points anywhere carry the weight, the lowest ones or not
+    support = contact_geometry(points, mine)[:, :12].reshape(2, 4, 3)
+    for b in range(2):
+        assert all(any(torch.allclose(s, p) for p in points[b, :3]) for s in support[b])
