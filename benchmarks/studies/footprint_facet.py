@@ -55,5 +55,5 @@ if which in ("val", "test", "prior-val", "prior-test"):
     print(f"TOL={TOL} {which}: {100*h['final_position_m_median']:.2f} cm {h['final_rotation_deg_median']:.1f} deg")
 else:
     sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parents[1])); import external_meshes as em
-    sys.argv = ["x"] + (["--work", "runs/external_val", "--random", "60", "--random-from", "30", "--no-named"] if which == "extval" else [])
+    sys.argv = ["x"] + (["--work", "runs/external_val", "--random", "60", "--random-from", "30", "--no-named"] if which == "extval" else []) + sys.argv[3:]
     print(f"TOL={TOL} {which}"); em.main()
