@@ -10,7 +10,8 @@ instead of the points within 5 mm of the lowest one. Patches ``contact_geometry`
 import sys, torch, numpy as np
 from scipy.spatial import ConvexHull, QhullError
 import physdyn.models.priors as pri
-TOL = float(sys.argv[1]); which = sys.argv[2]
+TOL = float(sys.argv[1].rstrip("p")); which = sys.argv[2]
+PERIMETER = sys.argv[1].endswith("p")  # e.g. 0.001p: the outline's corners only
 def touching_mask(P):  # P (N, 3) numpy
     z = P[:, 2]; band = z <= z.min() + pri.SUPPORT_DEPTH
     try:
@@ -34,7 +35,17 @@ def touching_mask(P):  # P (N, 3) numpy
     if best is None:
         return band
     _, n, c = best
-    return (P @ n + c) >= -TOL
+    on = (P @ n + c) >= -TOL
+    if PERIMETER and on.sum() >= 3:  # only the corners of the facet's outline (where Bullet keeps its contacts)
+        from scipy.spatial import ConvexHull as Hull2
+        idx = np.flatnonzero(on)
+        try:
+            corners = idx[Hull2(P[idx, :2]).vertices]
+        except QhullError:
+            return on
+        on = np.zeros_like(on)
+        on[corners] = True
+    return on
 orig = pri.contact_geometry
 def patched(points):
     masks = np.stack([touching_mask(p) for p in points.detach().cpu().numpy().astype(np.float64)])
