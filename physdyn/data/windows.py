@@ -19,7 +19,7 @@ import numpy as np
 
 from physdyn.data.store import StoreData
 from physdyn.geometry.mass import vertical_inertia
-from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_matrix, world_delta_rotvec
+from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_matrix, rotvec_to_quat, world_delta_rotvec
 
 # The per-step changes a model predicts, in the order of its 12 outputs [dv, dw, dp, dtheta].
 DELTA_KEYS = ("delta_linear_velocity", "delta_angular_velocity", "delta_position", "delta_rotation")
@@ -90,11 +90,8 @@ def turned_about_vertical(batch: dict[str, np.ndarray], yaw: np.ndarray) -> dict
     windows pushed in other directions. Points, velocities and changes (rotation vectors included) turn as
     vectors; the pose at the first step turns with the world, rotations since it are conjugated."""
 
-    c, s = np.cos(yaw), np.sin(yaw)
-    R = np.zeros((len(yaw), 3, 3))
-    R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = c, -s, s, c, 1.0
-    turn = np.zeros((len(yaw), 4))
-    turn[:, 2], turn[:, 3] = np.sin(yaw / 2), np.cos(yaw / 2)
+    turn = rotvec_to_quat(np.asarray(yaw, np.float64)[:, None] * np.array([0.0, 0.0, 1.0]))
+    R = quat_to_matrix(turn)
     out = dict(batch)
     for key in ("points", "linear_velocity", "angular_velocity", "delta_linear_velocity", "delta_angular_velocity",
                 "delta_position", "delta_rotation"):
