@@ -49,6 +49,9 @@ def main() -> None:
         path = str(store.source[store.shape_id[i]])
         return bodies.setdefault(path, prepare_body(path)).spec
 
+    def moved(sim: dict) -> np.ndarray:
+        return sim["com_position"][-1] - sim["com_position"][0]
+
     rows = []
     for i in sims:
         f = store.frames(i)
@@ -56,7 +59,6 @@ def main() -> None:
         v0, w0 = store.linear_velocity[f.start], store.angular_velocity[f.start]
         a = simulate_from_state(body(i), q[0], v0, w0, rate, len(p))
         b = simulate_from_state(body(i), q[0], perturbed(v0, args.eps, rng), perturbed(w0, args.eps, rng), rate, len(p))
-        moved = lambda s: s["com_position"][-1] - s["com_position"][0]  # noqa: E731
         rows.append((abs(w0[2]), rotation_angle_deg(a["orientation_xyzw"][-1], q[-1]),
                      np.linalg.norm(moved(a) - (p[-1] - p[0])),
                      rotation_angle_deg(b["orientation_xyzw"][-1], a["orientation_xyzw"][-1]),

@@ -18,29 +18,19 @@ def touching_mask(P):  # P (N, 3) numpy
         hull = ConvexHull(P)
     except QhullError:
         return band
-    eq = hull.equations  # n . x + c <= 0 inside; n outward
-    best = None
-    for k in np.flatnonzero(eq[:, 2] < -0.5):
-        n, c = eq[k, :3], eq[k, 3]
-        t = -c / n[2]  # the vertical through the COM meets the plane at z = t (x = y = 0)
-        tri = P[hull.simplices[k]]
-        # inside the triangle, in the xy projection
-        a, b, cc = tri[:, :2]; p = np.zeros(2)
-        v0, v1, v2 = b - a, cc - a, p - a
-        d = v0[0] * v1[1] - v1[0] * v0[1]
-        if abs(d) < 1e-15: continue
-        u = (v2[0] * v1[1] - v1[0] * v2[1]) / d; w = (v0[0] * v2[1] - v2[0] * v0[1]) / d
-        if u >= -1e-9 and w >= -1e-9 and u + w <= 1 + 1e-9:
-            if best is None or t < best[0]: best = (t, n, c)
-    if best is None:
+    # The facet the downward vertical through the centre of mass (inside the hull) leaves it by: among the
+    # facets facing down (n . (0, 0, -1) > 0), the nearest along the ray (the distance -c / that product).
+    eq = hull.equations  # n . x + c <= 0 inside, n outward
+    along = -eq[:, 2]
+    if not (along > 1e-12).any():
         return band
-    _, n, c = best
+    k = np.argmin(np.where(along > 1e-12, -eq[:, 3] / np.where(along > 1e-12, along, 1.0), np.inf))
+    n, c = eq[k, :3], eq[k, 3]
     on = (P @ n + c) >= -TOL
     if PERIMETER and on.sum() >= 3:  # only the corners of the facet's outline (where Bullet keeps its contacts)
-        from scipy.spatial import ConvexHull as Hull2
         idx = np.flatnonzero(on)
         try:
-            corners = idx[Hull2(P[idx, :2]).vertices]
+            corners = idx[ConvexHull(P[idx, :2]).vertices]
         except QhullError:
             return on
         on = np.zeros_like(on)
