@@ -6,10 +6,11 @@ Needs scikit-learn and data/quickstart.zarr, data/quickstart_large.zarr.
 
     python benchmarks/studies/topple_rocking.py
 """
-import sys, numpy as np
+import numpy as np
 from physdyn.data.store import load_store
 from physdyn.data.windows import world_oriented_points
 from physdyn.geometry.rotations import quat_to_matrix
+from physdyn.models.topple_classifier import INERTIA_SHAPE_FACTOR, best_threshold, clipped_scaling, standardise, store_features
 g = 9.81; H = 1 / 960
 def rock_features(s, sims, mu=0.25, seconds=1.0, true_inertia=True):
     n = len(sims); b = np.zeros(n); h = np.zeros(n); Ip = np.zeros(n); ud = np.zeros(n); om = np.zeros(n); ts = np.zeros(n); Ia = np.zeros(n)
@@ -24,7 +25,7 @@ def rock_features(s, sims, mu=0.25, seconds=1.0, true_inertia=True):
             R0 = quat_to_matrix(q0); A = quat_to_matrix(s.inertia_orientation_xyzw[sh])
             Iw = R0 @ A @ np.diag(s.inertia_diag[sh]) @ A.T @ R0.T / float(s.mass[sh])
         else:
-            Iw = 0.8 * (np.eye(3) * (P ** 2).sum(1).mean() - P.T @ P / len(P))
+            Iw = INERTIA_SHAPE_FACTOR * (np.eye(3) * (P ** 2).sum(1).mean() - P.T @ P / len(P))
         Ia[j] = a @ Iw @ a; Ip[j] = Ia[j] + b[j] ** 2 + h[j] ** 2
         u = v0[:2]; sp = np.linalg.norm(u); ud[j] = (np.r_[u / max(sp, 1e-9), 0] @ d); ts[j] = sp / (mu * g)
     alpha = np.arctan2(b, h); th = np.zeros(n); Om = om.copy(); peak = np.zeros(n); alive = om > 1e-6; top = np.zeros(n, bool); t = 0.0
@@ -37,19 +38,10 @@ def rock_features(s, sims, mu=0.25, seconds=1.0, true_inertia=True):
     return np.stack([np.minimum(peak / alpha, 1.5), top.astype(float), np.log(np.maximum(nofric, 1e-6)), -ud * ts * h / Ip, alpha], 1)
 
 
-def accuracy_with_threshold(p_val, y_val, p_te, y_te):
-    cands = np.unique(np.r_[p_val, 0.5])
-    acc = [np.mean((p_val >= c) == y_val) for c in cands]
-    best = np.flatnonzero(np.array(acc) == max(acc))
-    return np.mean((p_te >= cands[best[len(best) // 2]]) == y_te)
-
-
 if __name__ == "__main__":
     from sklearn.ensemble import HistGradientBoostingClassifier
     from sklearn.linear_model import LogisticRegression
-    from sklearn.preprocessing import StandardScaler
 
-    from physdyn.models.topple_classifier import store_features
     large, qs = load_store("data/quickstart_large.zarr"), load_store("data/quickstart.zarr")
     x, r, y = {}, {}, {}
     for tag, st, sp in [("tr", large, 0), ("va", qs, 1), ("te", qs, 2)]:
@@ -57,11 +49,11 @@ if __name__ == "__main__":
         x[tag], r[tag], y[tag] = store_features(st, sims, 256, 0.25), rock_features(st, sims, true_inertia=False), st.toppled[sims].astype(bool)
     print(f"the rocking block's own call: test accuracy {np.mean((r['te'][:, 1] > 0.5) == y['te']):.3f} (always no: {1 - y['te'].mean():.3f})")
     for name, f in [("32 features", lambda k: x[k]), ("32 + rocking", lambda k: np.c_[x[k], r[k]])]:
-        lo, hi = np.percentile(f("tr"), 1, 0), np.percentile(f("tr"), 99, 0)
-        sc = StandardScaler().fit(np.clip(f("tr"), lo, hi))
-        prep = lambda k: sc.transform(np.clip(f(k), lo, hi))  # noqa: E731
+        scaling = clipped_scaling(f("tr"))  # as fit-topple clips and scales its features
+        prep = lambda k: standardise(f(k), **scaling)  # noqa: E731
         for fam, m in [("logistic", LogisticRegression(C=100, max_iter=3000)),
                        ("boosted trees", HistGradientBoostingClassifier(max_iter=500, learning_rate=0.05, random_state=0))]:
             m.fit(prep("tr"), y["tr"])
-            acc = accuracy_with_threshold(m.predict_proba(prep("va"))[:, 1], y["va"], m.predict_proba(prep("te"))[:, 1], y["te"])
+            threshold = best_threshold(m.predict_proba(prep("va"))[:, 1], y["va"])
+            acc = np.mean((m.predict_proba(prep("te"))[:, 1] >= threshold) == y["te"])
             print(f"{name:14s} {fam:14s} test accuracy {acc:.3f}")
