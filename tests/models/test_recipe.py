@@ -402,3 +402,39 @@ def test_the_footprint_can_be_given_and_defaults_to_the_lowest_points():
     support = contact_geometry(points, mine)[:, :12].reshape(2, 4, 3)
     for b in range(2):
         assert all(any(torch.allclose(s, p) for p in points[b, :3]) for s in support[b])
+
+
+@pytest.mark.parametrize("detach", [False, True])
+def test_a_detached_topple_head_trains_its_own_row_only(quickstart_config, detach):
+    # The topple loss alone: with the paper's head it reaches the predictor and the encoder; detached, only
+    # the topple row of the head. The numbers computed are the same either way.
+    cfg = quickstart_config(f"model.head.params.detach_topple={str(detach).lower()}")
+    dm = DynamicsDataModule(cfg.data)
+    dm.setup("fit")
+    model = DynamicsModel(cfg, dm.normalization)
+    torch.nn.init.normal_(model.head.linear.weight, std=0.1)  # a prior's head starts at zero
+    model.train()
+    batch = next(iter(dm.train_dataloader()))
+    feature = model.encode(batch["points"], batch.get("spin_inertia"))
+    changes, logit, _ = model(feature, batch["linear_velocity"], batch["angular_velocity"], None,
+                              batch["relative_orientation_xyzw"])
+    torch.nn.functional.binary_cross_entropy_with_logits(logit, batch["topple_label"].float()).backward()
+    reached = lambda module: any(p.grad is not None and p.grad.abs().sum() > 0 for p in module.parameters())  # noqa: E731
+    assert reached(model.predictor) != detach and reached(model.encoder) != detach
+    grad = model.head.linear.weight.grad
+    assert grad[12].abs().sum() > 0 and grad[:12].abs().sum() == 0
+    paper = DynamicsModel(quickstart_config("model.head.params.detach_topple=false", out="paper"), dm.normalization)
+    paper.load_state_dict(model.state_dict())
+    paper.train()
+    same_changes, same_logit, _ = paper(paper.encode(batch["points"], batch.get("spin_inertia")), batch["linear_velocity"],
+                                        batch["angular_velocity"], None, batch["relative_orientation_xyzw"])
+    torch.testing.assert_close(same_changes, changes)
+    torch.testing.assert_close(same_logit, logit)
+
+
+def test_a_detached_topple_head_is_saved_with_the_model_and_rolls_out(quickstart_config, store):
+    result = fit(quickstart_config("model.head.params.detach_topple=true"))
+    model = DynamicsModel.load_from_checkpoint(result.last_checkpoint)
+    assert model.head.config.detach_topple is True
+    report = evaluate(model, store, split="test")
+    assert math.isfinite(report["headline"]["final_position_m_median"]) and report["topple"]["accuracy"] >= 0

@@ -7,26 +7,38 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
+import torch.nn.functional as F
+
 from physdyn.models.heads.base import NUM_CHANGES, PredictionHead
 from physdyn.registry import HEADS
 
 
 @HEADS.register("topple")
 class ToppleHead(PredictionHead):
-    """One linear layer to 12 state changes + 1 topple logit."""
+    """One linear layer to 12 state changes + 1 topple logit.
+
+    ``detach_topple``: the topple logit's loss trains its own row of the layer only, not the predictor
+    under it. The paper's head (False) lets the topple cross-entropy shape the shared features; its
+    gradient dwarfs that of the small velocity residuals on top of a prior, and a residual model then
+    learns nothing of what its prior misses (docs/ablations.md, sixth session). The numbers the head
+    computes are the same either way; only what the topple loss trains differs."""
 
     predicts_topple = True
 
     @dataclass
     class Config:
-        pass
+        detach_topple: bool = False
 
     def __init__(self, config: "ToppleHead.Config | None" = None, in_dim: int = 1024):
         super().__init__()
+        self.config = config or self.Config()
         self.linear = nn.Linear(in_dim, NUM_CHANGES + 1)
 
     def forward(self, features: torch.Tensor):
         out = self.linear(features)
+        if self.config.detach_topple and torch.is_grad_enabled():
+            row = slice(NUM_CHANGES, NUM_CHANGES + 1)
+            return out[..., :NUM_CHANGES], F.linear(features.detach(), self.linear.weight[row], self.linear.bias[row])[..., 0]
         return out[..., :NUM_CHANGES], out[..., NUM_CHANGES]
 
 
