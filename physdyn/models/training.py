@@ -144,10 +144,15 @@ def fit(config: ExperimentConfig, resume: bool = False, overwrite: bool = False,
     save_config_yaml(cfg, out_dir / "config.yaml")
 
     checkpoint = ModelCheckpoint(
-        dirpath=out_dir, filename="best", monitor="val/loss", mode="min", save_top_k=1, save_last=True,
+        dirpath=out_dir, filename="best", monitor="val/loss", mode="min", save_top_k=1,
         auto_insert_metric_name=False, enable_version_counter=False,
     )
-    callbacks: list = [checkpoint, LearningRateMonitor(logging_interval="step")]
+    # Lightning's save_last copies a checkpoint only when one is saved, i.e. when val/loss improves: a run
+    # whose validation stopped improving kept a stale last.ckpt, and --resume went back to that step. This
+    # one is written at every validation (and once more when training ends, below).
+    latest = ModelCheckpoint(dirpath=out_dir, filename="last", monitor=None, save_top_k=1, save_on_train_epoch_end=False,
+                             auto_insert_metric_name=False, enable_version_counter=False)
+    callbacks: list = [checkpoint, latest, LearningRateMonitor(logging_interval="step")]
     es = cfg.early_stopping
     if es.enabled:
         callbacks.append(EarlyStopping(monitor="val/loss", mode="min", patience=es.patience, min_delta=es.min_delta, check_on_train_epoch_end=False))
@@ -169,6 +174,8 @@ def fit(config: ExperimentConfig, resume: bool = False, overwrite: bool = False,
         metrics.update(scalar(trainer.callback_metrics))
         if "val/loss" in trainer.callback_metrics:
             checkpoint.best_model_score = trainer.callback_metrics["val/loss"]
+    if not trainer.interrupted:
+        trainer.save_checkpoint(out_dir / "last.ckpt")  # with the steps after the last validation
     if checkpoint.best_model_score is not None:
         metrics["best_val_loss"] = float(checkpoint.best_model_score)
     best = out_dir / "best.ckpt"

@@ -372,3 +372,14 @@ def test_cpu_threads_sets_torchs_threads_for_the_run(quickstart_config):
         torch.set_num_threads(before)
     with pytest.raises(ConfigError, match="cpu_threads"):
         quickstart_config("cpu_threads=-2")
+
+
+def test_last_checkpoint_is_the_last_step_even_when_validation_stopped_improving(quickstart_config):
+    # Lightning's save_last copies a checkpoint only when val/loss improves: a run whose validation got
+    # worse kept an old last.ckpt, and --resume went back to it. A learning rate this large makes
+    # validation worse than at the first check.
+    run = fit(quickstart_config("trainer.max_steps=12", "trainer.val_check_interval=3", "optim.lr=0.5", "optim.lr_min=0.5"))
+    last = torch.load(run.last_checkpoint, map_location="cpu", weights_only=False)
+    best = torch.load(run.best_checkpoint, map_location="cpu", weights_only=False)
+    assert last["global_step"] == 12
+    assert best["global_step"] < 12  # validation did stop improving: the case this test is about
