@@ -83,3 +83,17 @@ def test_defaults_that_include_each_other_are_a_one_line_error(tmp_path):
         with pytest.raises(ConfigError, match="cycle") as info:
             load_config(DataConfig, tmp_path / name)
         assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("scale", sorted(p.name for p in (REPO / "configs/reproduce").glob("*.yaml")))
+def test_every_reproduce_scale_loads_and_its_training_configs_validate(scale):
+    from physdyn.experiments.suite import load_scale
+
+    cfg, path = load_scale(REPO / "configs/reproduce" / scale)
+    for preset, overrides in ((cfg.train_preset, cfg.train_overrides), (cfg.mlp_preset, cfg.mlp_overrides)):
+        load_experiment_config(path.parent / preset, list(overrides))
+    if scale == "cpu_detached.yaml":  # the cpu scale with one override more
+        cpu, _ = load_scale("cpu")
+        assert cfg.data == cpu.data and cfg.mlp_overrides == cpu.mlp_overrides
+        trained = load_experiment_config(path.parent / cfg.train_preset, list(cfg.train_overrides))
+        assert trained.model.head.params == {"detach_topple": True} and trained.trainer["max_steps"] == 3000
