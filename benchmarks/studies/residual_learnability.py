@@ -14,11 +14,10 @@ from sklearn.ensemble import HistGradientBoostingRegressor
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from priors import prior_only_model  # noqa: E402
+from residual_rows import residual_rows  # noqa: E402
 
 from physdyn.data.store import load_store  # noqa: E402
-from physdyn.data.windows import relative_rotation  # noqa: E402
 from physdyn.eval.baselines import load_checkpoint  # noqa: E402
-from physdyn.eval.evaluate import gather_truth, predict_single_steps, select_sequences  # noqa: E402
 from physdyn.models.topple_classifier import store_features  # noqa: E402
 
 s = load_store(sys.argv[1])
@@ -27,24 +26,7 @@ trees = lambda: HistGradientBoostingRegressor(max_iter=300, learning_rate=0.05, 
 
 
 def rows(split, model=None):
-    sims = select_sequences(s, split)
-    sims = sims[~s.toppled[sims].astype(bool)]
-    truth = gather_truth(s, sims)
-    pr = predict_single_steps(prior, s, sims, truth)
-    md = predict_single_steps(model, s, sims, truth) if model is not None else None
-    shape = store_features(s, sims, 256, 0.25)
-    B, S = truth["valid"].shape
-    rel = relative_rotation(truth["orientation_xyzw"][:, 0], truth["orientation_xyzw"][:, :S])
-    X, Y, M = [], [], []
-    for t in range(min(S, 20)):
-        ok = truth["valid"][:, t] & (np.linalg.norm(truth["linear_velocity"][:, t, :2], axis=1) > 0.1)
-        X.append(np.c_[truth["linear_velocity"][:, t], truth["angular_velocity"][:, t], rel[:, t], np.full(B, t), shape][ok])
-        Y.append(np.c_[truth["delta_linear_velocity"][:, t] - pr["delta_linear_velocity"][:, t],
-                       truth["delta_angular_velocity"][:, t] - pr["delta_angular_velocity"][:, t]][ok])
-        if md is not None:
-            M.append(np.c_[md["delta_linear_velocity"][:, t] - pr["delta_linear_velocity"][:, t],
-                           md["delta_angular_velocity"][:, t] - pr["delta_angular_velocity"][:, t]][ok])
-    return np.concatenate(X), np.concatenate(Y), (np.concatenate(M) if M else None)
+    return residual_rows(s, prior, split, model)
 
 
 xtr, ytr, _ = rows("train")

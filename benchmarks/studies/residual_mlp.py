@@ -15,11 +15,9 @@ from sklearn.ensemble import HistGradientBoostingRegressor
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from priors import prior_only_model  # noqa: E402
+from residual_rows import residual_rows  # noqa: E402
 
 from physdyn.data.store import load_store  # noqa: E402
-from physdyn.data.windows import relative_rotation  # noqa: E402
-from physdyn.eval.evaluate import gather_truth, predict_single_steps, select_sequences  # noqa: E402
-from physdyn.models.topple_classifier import store_features  # noqa: E402
 
 s = load_store(sys.argv[1])
 prior = prior_only_model("contact", s)
@@ -27,21 +25,7 @@ NAMES = ["dv_x", "dv_y", "dv_z", "dw_x", "dw_y", "dw_z"]
 
 
 def rows(split):
-    sims = select_sequences(s, split)
-    sims = sims[~s.toppled[sims].astype(bool)]
-    truth = gather_truth(s, sims)
-    pr = predict_single_steps(prior, s, sims, truth)
-    shape = store_features(s, sims, 256, 0.25)
-    B, S = truth["valid"].shape
-    rel = relative_rotation(truth["orientation_xyzw"][:, 0], truth["orientation_xyzw"][:, :S])
-    X, Y = [], []
-    for t in range(min(S, 20)):
-        ok = truth["valid"][:, t] & (np.linalg.norm(truth["linear_velocity"][:, t, :2], axis=1) > 0.1)
-        # v (3), w (3), rotation since step 0 (4), step (1), shape features (32)
-        X.append(np.c_[truth["linear_velocity"][:, t], truth["angular_velocity"][:, t], rel[:, t], np.full(B, t), shape][ok])
-        Y.append(np.c_[truth["delta_linear_velocity"][:, t] - pr["delta_linear_velocity"][:, t],
-                       truth["delta_angular_velocity"][:, t] - pr["delta_angular_velocity"][:, t]][ok])
-    return np.concatenate(X), np.concatenate(Y)
+    return residual_rows(s, prior, split)[:2]
 
 
 def mlp(xtr, ytr, xva, yva, xte, hidden=256, steps=6000):
