@@ -5,6 +5,7 @@ the one-object roll-out routed through the batched one, which applies it.
     python benchmarks/studies/linear_residual.py fit configs/experiment/quickstart.yaml model.head.params.detach_topple=true out_dir=runs/qs_linonly
     python benchmarks/studies/linear_residual.py val runs/qs_linonly/best.ckpt data/quickstart.zarr
     python benchmarks/studies/linear_residual.py external --work runs/external_val --random 60 --random-from 30 --no-named --checkpoint runs/qs_linonly/best.ckpt
+    python benchmarks/studies/linear_residual.py run benchmarks/studies/table1_parts.py runs/t1/speakers.zarr runs/t1/lin15/best.ckpt
 """
 import runpy
 import sys
@@ -36,5 +37,8 @@ elif what == "val":
 elif what == "external":
     sys.argv = ["external_meshes.py", *args]
     runpy.run_path(str(Path(__file__).resolve().parents[1] / "external_meshes.py"), run_name="__main__")
+elif what == "run":  # any other script, with the patch applied
+    sys.argv = list(args)
+    runpy.run_path(args[0], run_name="__main__")
 else:
-    sys.exit("usage: linear_residual.py fit|val|external ...")
+    sys.exit("usage: linear_residual.py fit|val|external|run ...")

@@ -33,7 +33,6 @@ def batch_rollout(model: Any, points: Any, linear_velocity0: Any, angular_veloci
     # (in eval mode every cloud is encoded on its own, so this changes no number).
     unique, inverse = torch.unique(points.reshape(B, -1), dim=0, return_inverse=True)
     code = model.with_spin_inertia(model.encode(unique.reshape(len(unique), *points.shape[1:]))[inverse], spin_inertia)
-    feature, geometry = model.split_code(code)
     v = torch.as_tensor(linear_velocity0, dtype=f64, device=device).reshape(B, 3)
     w = torch.as_tensor(angular_velocity0, dtype=f64, device=device).reshape(B, 3)
     K = 0 if warm_linear is None else int(warm_linear.shape[1])
@@ -50,12 +49,13 @@ def batch_rollout(model: Any, points: Any, linear_velocity0: Any, angular_veloci
     turns = torch.empty(B, steps, 4, dtype=torch.float32, device=device) if turn is not None else None
     scale, shift = model.change_scale.to(f64), model.change_shift.to(f64)
     # Rows of the recurrent state can be taken and put back only for the LSTM's (h, c); other predictors
-    # run every sequence at every step.
-    skip = not want_topple and type(model.predictor) is LSTMPredictor
-    L, H = (model.predictor.config.num_layers, model.predictor.config.hidden) if skip else (0, 0)
-    h = torch.zeros(L, B, H, device=device) if skip else None
-    c = torch.zeros(L, B, H, device=device) if skip else None
-    queued_from = torch.full((B,), -1, dtype=torch.long, device=device)  # first step not yet taken, or -1
+    # run every sequence at every step, through the model's forward.
+    parts = model.network_codes(code)
+    skip = not want_topple and all(type(m.predictor) is LSTMPredictor for m, _ in parts)
+    if skip:  # each network with its own rows, queue and rest gate
+        nets = [_Rows(m, m.split_code(c), B) for m, c in parts]
+        # the two networks' contact priors are one computation when they read the same footprint
+        shared = len(nets) > 1 and nets[1].same_prior(nets[0])
     state = None
     for t in range(steps):
         if 1 <= t <= K:
@@ -65,26 +65,15 @@ def batch_rollout(model: Any, points: Any, linear_velocity0: Any, angular_veloci
         q = None if turn is None else turn.float()[:, None]
         if turns is not None:
             turns[:, t] = q[:, 0]
-        moving = model.rest_gate(v32, w32)
-        if not skip:
-            inputs = model.network_inputs(feature, v32, w32, q)
-            features, state = model.predictor(inputs, state)
-            net, logit = model.head(features)
+        if not skip:  # the model's forward: network, prior and rest gate
+            out, logit, state = model(code, v32, w32, state, q)
             if topple_out is not None and logit is not None:
                 topple_out[:, t] = torch.sigmoid(logit[:, 0]).to(f64)
+            si = out[:, 0].to(f64) * scale + shift
         else:
-            need = torch.ones(B, dtype=torch.bool, device=device) if moving is None else moving[:, 0]
-            rows = need.nonzero()[:, 0]
-            net = torch.zeros(B, 1, 12, device=device)
-            if len(rows):
-                _take_queued(model, rows, t, queued_from, feature, fed, turns, h, c)
-                inputs = model.network_inputs(feature[rows], v32[rows], w32[rows], None if q is None else q[rows])
-                features, (h[:, rows], c[:, rows]) = model.predictor(inputs, (h[:, rows], c[:, rows]))
-                net[rows] = model.head(features)[0]
-            queued_from = torch.where(~need & (queued_from < 0), t, queued_from)
-        prior = model.analytic_prior(v32, w32, q, geometry)
-        out = net if prior is None else model.with_residual(net, prior, moving)
-        si = out[:, 0].to(f64) * scale + shift
+            si, prior = nets[0].changes(t, v32, w32, q, fed, turns)
+            if len(nets) > 1:  # velocity and position from the linear channels' network
+                si = torch.where(LINEAR.to(device), nets[1].changes(t, v32, w32, q, fed, turns, prior if shared else None)[0], si)
         changes[:, t] = si
         if turn is not None:  # R_{t+1} R_0^T = Exp(dtheta_t) R_t R_0^T, as the pose is integrated
             turn = quat_multiply(rotvec_to_quat(si[:, 9:12]), turn)
@@ -94,18 +83,64 @@ def batch_rollout(model: Any, points: Any, linear_velocity0: Any, angular_veloci
     return {"changes": changes, "fed": fed, "topple_probability": topple_out}
 
 
-def _take_queued(model: Any, rows: torch.Tensor, t: int, queued_from: torch.Tensor, feature: torch.Tensor,
-                 fed: torch.Tensor, turns: torch.Tensor | None, h: torch.Tensor, c: torch.Tensor) -> None:
-    """Run the LSTM of ``rows`` over the inputs they queued before step t (steps queued_from..t-1), in
-    one call per first queued step, and mark their queues empty."""
-    behind = rows[queued_from[rows] >= 0]
-    for first in torch.unique(queued_from[behind]).tolist():
-        group = behind[queued_from[behind] == first]
-        span = fed[group, first:t].float()
-        q = None if turns is None else turns[group, first:t]
-        inputs = model.network_inputs(feature[group], span[..., :3], span[..., 3:], q)
-        state = (h[:, group], c[:, group])
-        for k in range(inputs.shape[1]):  # step by step, as the steps that needed the network ran
-            _, state = model.predictor(inputs[:, k : k + 1], state)
-        h[:, group], c[:, group] = state
-    queued_from[rows] = -1
+LINEAR = torch.tensor([True] * 3 + [False] * 3 + [True] * 3 + [False] * 3)  # of [dv, dw, dp, dtheta]
+
+
+class _Rows:
+    """One network's roll-out state by rows (the LSTM's h and c, and the steps each row has queued), so
+    that the network runs only on the rows above its rest gate."""
+
+    def __init__(self, model: Any, code: tuple[torch.Tensor, torch.Tensor | None], B: int):
+        self.model = model
+        self.feature, self.geometry = code
+        L, H = model.predictor.config.num_layers, model.predictor.config.hidden
+        self.h = torch.zeros(L, B, H, device=model.device)
+        self.c = torch.zeros(L, B, H, device=model.device)
+        self.queued_from = torch.full((B,), -1, dtype=torch.long, device=model.device)  # first step not yet taken, or -1
+        self.scale, self.shift = model.change_scale.to(torch.float64), model.change_shift.to(torch.float64)
+
+    def same_prior(self, other: "_Rows") -> bool:
+        """Whether this network's prior computes the same changes as ``other``'s."""
+        a, b = self.model, other.model
+        same_geometry = (self.geometry is None and other.geometry is None) or (
+            self.geometry is not None and other.geometry is not None and torch.equal(self.geometry, other.geometry))
+        return same_geometry and (a.config.model.prior, a.prior_dt, a.prior_friction, a.prior_gravity) == (
+            b.config.model.prior, b.prior_dt, b.prior_friction, b.prior_gravity)
+
+    def changes(self, t: int, v32: torch.Tensor, w32: torch.Tensor, q: torch.Tensor | None, fed: torch.Tensor,
+                turns: torch.Tensor | None, prior: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Step t's changes (B, 12) float64 SI, and the prior's (B, 1, 12) (given: not computed again)."""
+        model = self.model
+        if not model.uses_orientation:
+            q, turns = None, None
+        moving = model.rest_gate(v32, w32)
+        B = v32.shape[0]
+        need = torch.ones(B, dtype=torch.bool, device=v32.device) if moving is None else moving[:, 0]
+        rows = need.nonzero()[:, 0]
+        net = torch.zeros(B, 1, 12, device=v32.device)
+        if len(rows):
+            self._take_queued(rows, t, fed, turns)
+            inputs = model.network_inputs(self.feature[rows], v32[rows], w32[rows], None if q is None else q[rows])
+            features, (self.h[:, rows], self.c[:, rows]) = model.predictor(inputs, (self.h[:, rows], self.c[:, rows]))
+            net[rows] = model.head(features)[0]
+        self.queued_from = torch.where(~need & (self.queued_from < 0), t, self.queued_from)
+        if prior is None:
+            prior = model.analytic_prior(v32, w32, q, self.geometry)
+        out = net if prior is None else model.with_residual(net, prior, moving)
+        return out[:, 0].to(torch.float64) * self.scale + self.shift, prior
+
+    def _take_queued(self, rows: torch.Tensor, t: int, fed: torch.Tensor, turns: torch.Tensor | None) -> None:
+        """Run the LSTM of ``rows`` over the inputs they queued before step t (steps queued_from..t-1), in
+        one call per first queued step, and mark their queues empty."""
+        model, queued_from, h, c = self.model, self.queued_from, self.h, self.c
+        behind = rows[queued_from[rows] >= 0]
+        for first in torch.unique(queued_from[behind]).tolist():
+            group = behind[queued_from[behind] == first]
+            span = fed[group, first:t].float()
+            q = None if turns is None else turns[group, first:t]
+            inputs = model.network_inputs(self.feature[group], span[..., :3], span[..., 3:], q)
+            state = (h[:, group], c[:, group])
+            for k in range(inputs.shape[1]):  # step by step, as the steps that needed the network ran
+                _, state = model.predictor(inputs[:, k : k + 1], state)
+            h[:, group], c[:, group] = state
+        queued_from[rows] = -1

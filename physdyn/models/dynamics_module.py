@@ -32,6 +32,11 @@ from physdyn.models.topple_classifier import ToppleClassifier
 from physdyn.registry import ENCODERS, HEADS, PREDICTORS
 
 
+# model.residual_channels -> which of [dv (3), dw (3), dp (3), dtheta (3)] the network's residual corrects
+RESIDUAL_MASKS = {"all": [1.0] * 12, "linear": [1.0] * 3 + [0.0] * 3 + [1.0] * 3 + [0.0] * 3}
+RESIDUAL_MASKS_T = {k: torch.tensor(v) for k, v in RESIDUAL_MASKS.items()}
+
+
 @dataclass
 class DynamicsPrediction:
     """Predicted changes from step t to t+1, SI units, world frame.
@@ -108,20 +113,50 @@ class DynamicsModel(LightningModule):
         self.prior_dt = 1.0 / float(info.get("rate_hz", 15.0))
         self.prior_friction = float(info.get("friction", 0.25))
         self.prior_gravity = float(info.get("gravity", 9.81))
+        # The channels [dv, dw, dp, dtheta] the network's residual corrects (model.residual_channels); not
+        # saved: the config rebuilds it.
+        self.register_buffer("residual_mask", f32(RESIDUAL_MASKS[m.residual_channels]), persistent=False)
         # Whether the sequence topples, from step-0 features (`physdyn fit-topple`); None: the head's rule.
         self.topple_classifier = None
+        # Another DynamicsModel whose velocity and position changes replace this one's, both networks fed
+        # the same state (`python -m physdyn.models.export --linear-from`); None: this model alone.
+        self.linear_channels = None
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         # Checkpoints from before per-channel normalisation have no shift buffers: their shift is zero.
         state = checkpoint.get("state_dict", {})
         for name in ("change_shift", "velocity_shift"):
             state.setdefault(name, torch.zeros_like(getattr(self, name)))
+        for name in ("change_shift", "velocity_shift"):
+            if checkpoint.get("linear_channels"):
+                state.setdefault(f"linear_channels.{name}", torch.zeros_like(getattr(self, name)))
         if checkpoint.get("topple_classifier"):
             self.topple_classifier = ToppleClassifier.from_dict(checkpoint["topple_classifier"])
+        if checkpoint.get("linear_channels"):  # its weights are in the state dict, under linear_channels.
+            self.attach_linear_channels(DynamicsModel(**checkpoint["linear_channels"]["hyper_parameters"]))
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         if self.topple_classifier is not None:
             checkpoint["topple_classifier"] = self.topple_classifier.to_dict()
+        if self.linear_channels is not None:
+            checkpoint["linear_channels"] = {"hyper_parameters": dict(self.linear_channels.hparams)}
+
+    def on_fit_start(self) -> None:
+        if self.linear_channels is not None:
+            raise ConfigError("this model combines two networks (export --linear-from) and is for predictions only; "
+                              "train each of them on its own with `physdyn fit`")
+
+    def attach_linear_channels(self, model: "DynamicsModel") -> None:
+        """Take the velocity and position changes from ``model`` from now on (see ``linear_channels``)."""
+        if model.linear_channels is not None:
+            raise ConfigError("the model for the linear channels combines two networks itself; pass a plain one")
+        if model.uses_orientation and not self.uses_orientation:
+            raise ConfigError("the model for the linear channels is fed its orientation since step 0 and this one does not "
+                              "track it; combine it with a model trained with model.orientation_input=true")
+        if abs(float(model.data_info.get("rate_hz", 15.0)) - float(self.data_info.get("rate_hz", 15.0))) > 1e-9:
+            raise ConfigError(f"the two models predict at different rates ({model.data_info.get('rate_hz')} and "
+                              f"{self.data_info.get('rate_hz')} Hz); pass models trained on stores of the same rate")
+        self.linear_channels = model.to(self.device)
 
     # ------------------------------------------------------------------ facts
     @property
@@ -155,12 +190,33 @@ class DynamicsModel(LightningModule):
         ``forward``/``step``."""
         feature = self.encoder(points / self.point_scale)
         if self.uses_shape_prior:
-            feature = self.with_spin_inertia(torch.cat([feature, contact_geometry(points)], dim=1), spin_inertia)
+            feature = self._with_spin_inertia(torch.cat([feature, contact_geometry(points)], dim=1), spin_inertia)
+        if self.linear_channels is not None:  # then the other network's code
+            feature = torch.cat([feature, self.linear_channels.encode(points, spin_inertia)], dim=1)
         return feature
 
     def with_spin_inertia(self, code: torch.Tensor, spin_inertia: Any) -> torch.Tensor:
         """A shape code from ``encode`` with the contact prior's spin inertia replaced by the body's (B,),
         where ``model.contact_inertia=body`` and the caller knows it; otherwise the code as it is."""
+        if self.linear_channels is None:
+            return self._with_spin_inertia(code, spin_inertia)
+        (_, own), (other, theirs) = self.network_codes(code)
+        return torch.cat([self._with_spin_inertia(own, spin_inertia), other.with_spin_inertia(theirs, spin_inertia)], dim=1)
+
+    def network_codes(self, code: torch.Tensor) -> list[tuple["DynamicsModel", torch.Tensor]]:
+        """A shape code from ``encode`` -> [(network, its part of the code)]: this model's, and for a model
+        combining two (``linear_channels``) the other's after it."""
+        other = self.linear_channels
+        if other is None:
+            return [(self, code)]
+        widths = (int(self.encoder.out_dim), int(other.encoder.out_dim))
+        shaped = (int(self.uses_shape_prior), int(other.uses_shape_prior))
+        # each part: its encoder's feature, then the footprint geometry (one width for both: the same cloud)
+        geometry = (code.shape[1] - sum(widths)) // max(sum(shaped), 1)
+        width = widths[0] + geometry * shaped[0]
+        return [(self, code[:, :width]), (other, code[:, width:])]
+
+    def _with_spin_inertia(self, code: torch.Tensor, spin_inertia: Any) -> torch.Tensor:
         if spin_inertia is None or not self.uses_shape_prior or self.config.model.contact_inertia != "body":
             return code
         column = code.shape[1] - 2  # contact_geometry ends with I_zz / m and the height of the centre of mass
@@ -175,7 +231,14 @@ class DynamicsModel(LightningModule):
         """feature (B, F); velocities (B, T, 3) SI, world frame; orientation (B, T, 4) xyzw, the rotation since
         the point cloud's orientation (only with ``model.orientation_input``)
         -> (changes (B, T, 12) normalised [dv, dw, dp, dtheta], topple logit (B, T) or None, state)."""
-        feature, geometry = self.split_code(feature)
+        if self.linear_channels is not None:
+            return self._combined(feature, linear_velocity, angular_velocity, state, orientation)
+        return self._alone(feature, linear_velocity, angular_velocity, state, orientation)
+
+    def _alone(self, code: torch.Tensor, linear_velocity: torch.Tensor, angular_velocity: torch.Tensor, state: Any,
+               orientation: torch.Tensor | None):
+        """``forward`` of this network alone: ``code`` its own part of the shape code."""
+        feature, geometry = self.split_code(code)
         inputs = self.network_inputs(feature, linear_velocity, angular_velocity, orientation)
         features, state = self.predictor(inputs, state)
         changes, logit = self.head(features)
@@ -184,8 +247,22 @@ class DynamicsModel(LightningModule):
             changes = self.with_residual(changes, prior, self.rest_gate(linear_velocity, angular_velocity))
         return changes, logit, state
 
+    def _combined(self, code: torch.Tensor, linear_velocity: torch.Tensor, angular_velocity: torch.Tensor, state: Any,
+                  orientation: torch.Tensor | None):
+        """``forward`` of a model with ``linear_channels``: both networks on the same state, each with its own
+        recurrent state; velocity and position changes from the other, spin, rotation and topple from this."""
+        (_, own), (other, other_code) = self.network_codes(code)
+        own_state, other_state = (None, None) if state is None else state
+        changes, logit, own_state = self._alone(own, linear_velocity, angular_velocity, own_state, orientation)
+        theirs, _, other_state = other(other_code, linear_velocity, angular_velocity, other_state,
+                                       orientation if other.uses_orientation else None)
+        theirs = (theirs * other.change_scale + other.change_shift - self.change_shift) / self.change_scale
+        changes = torch.where(RESIDUAL_MASKS_T["linear"].to(changes.device) > 0, theirs, changes)
+        return changes, logit, (own_state, other_state)
+
     def split_code(self, code: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """A shape code from ``encode`` -> (the encoder's feature, the contact prior's geometry or None)."""
+        """This network's part of a shape code (``network_codes``; of a model of one network, the whole code)
+        -> (the encoder's feature, the contact prior's geometry or None)."""
         if not self.uses_shape_prior:
             return code, None
         width = int(self.encoder.out_dim)
@@ -227,6 +304,8 @@ class DynamicsModel(LightningModule):
             # Near rest the prior's stop is exact (below 0.1 m/s a slide ends within one 1/15 s step)
             # and the residual only adds drift: below both speeds the prediction is the prior's.
             changes = changes * moving.unsqueeze(-1).to(changes.dtype)
+        if self.config.model.residual_channels != "all":
+            changes = changes * self.residual_mask
         return changes + (prior - self.change_shift) / self.change_scale
 
     def _as_tensor(self, x: Any) -> torch.Tensor:

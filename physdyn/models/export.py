@@ -2,10 +2,16 @@
 
     python -m physdyn.models.export runs/quickstart/best.ckpt physdyn/assets/bundled.ckpt
     python -m physdyn.models.export runs/bundled/best.ckpt physdyn/assets/bundled.ckpt --set model.contact_inertia=body
+    python -m physdyn.models.export runs/bundled/topple.ckpt physdyn/assets/bundled.ckpt --linear-from runs/bundled_linear/best.ckpt
 
 ``--set`` changes a setting that acts at inference only (chosen on validation after training, as the
 bundled model's rest gate was) or the model's name in reports: ``INFERENCE_KEYS``; the weights stay as
 trained.
+
+``--linear-from CKPT`` combines two trained models into one file: the velocity and position changes come
+from CKPT's network (best trained with ``model.residual_channels=linear``), spin, rotation and toppling from
+SRC's, both networks fed the same state at every step (``DynamicsModel.linear_channels``). CKPT's own topple
+classifier and optimiser state are left out.
 """
 
 from __future__ import annotations
@@ -25,7 +31,7 @@ from physdyn.models.training import validate_experiment_config
 
 # What DynamicsModel.load_from_checkpoint needs; the optimiser, loops and callbacks are only for resuming.
 KEEP = ("state_dict", "hyper_parameters", "hparams_name", "pytorch-lightning_version", "epoch", "global_step",
-        "topple_classifier")
+        "topple_classifier", "linear_channels")
 # Settings that change what a trained network is combined with, not the network itself, and the name
 # reports give the model.
 INFERENCE_KEYS = ("model.residual_gate_linear", "model.residual_gate_angular", "model.contact_inertia", "name")
@@ -49,7 +55,30 @@ def apply_settings(hyper_parameters: dict, settings: list[str]) -> dict:
     return {**hyper_parameters, "config": to_dict(checked)}
 
 
-def export_checkpoint(src: str | Path, dst: str | Path, overwrite: bool = False, settings: list[str] | None = None) -> Path:
+def with_linear_channels(slim: dict, linear: dict, name: str) -> dict:
+    """A slim checkpoint whose velocity and position changes come from the checkpoint ``linear`` (its dict;
+    ``name`` for errors): its weights under ``linear_channels.`` and its hyper-parameters beside. Checked by
+    building the combined model. Raises ``ConfigError``."""
+    from physdyn.models.dynamics_module import DynamicsModel
+
+    if linear.get("linear_channels"):
+        raise ConfigError(f"--linear-from {name} combines two networks itself; pass a checkpoint of `physdyn fit`")
+    state = {k: v for k, v in slim["state_dict"].items() if not k.startswith("linear_channels.")}
+    state.update({f"linear_channels.{k}": v for k, v in linear["state_dict"].items()})
+    out = {**slim, "state_dict": state, "linear_channels": {"hyper_parameters": linear["hyper_parameters"]}}
+    model = DynamicsModel(**slim["hyper_parameters"])
+    model.attach_linear_channels(DynamicsModel(**linear["hyper_parameters"]))  # the rate and orientation checks
+    for key in ("change_shift", "velocity_shift"):  # checkpoints from before per-channel normalisation
+        state.setdefault(f"linear_channels.{key}", torch.zeros_like(getattr(model, key)))
+    missing, unexpected = model.load_state_dict(state, strict=False)
+    if missing or unexpected:
+        raise ConfigError(f"--linear-from {name}: its weights do not fit its own config ({len(missing)} missing, "
+                          f"{len(unexpected)} unexpected); pass a checkpoint of `physdyn fit`")
+    return out
+
+
+def export_checkpoint(src: str | Path, dst: str | Path, overwrite: bool = False, settings: list[str] | None = None,
+                      linear_from: str | Path | None = None) -> Path:
     src, dst = Path(src), Path(dst)
     checkpoint = read_checkpoint(src)
     if dst.exists() and not overwrite:
@@ -57,6 +86,8 @@ def export_checkpoint(src: str | Path, dst: str | Path, overwrite: bool = False,
     slim = {key: checkpoint[key] for key in KEEP if key in checkpoint}
     if settings:
         slim["hyper_parameters"] = apply_settings(slim["hyper_parameters"], settings)
+    if linear_from is not None:
+        slim = with_linear_channels(slim, read_checkpoint(linear_from), str(linear_from))
     dst.parent.mkdir(parents=True, exist_ok=True)
     with atomic_output(dst) as tmp:  # never a half-written checkpoint under the final name
         torch.save(slim, tmp)
@@ -70,9 +101,11 @@ def main() -> None:
     parser.add_argument("--overwrite", action="store_true")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help=f"an inference setting to write into the config: {', '.join(INFERENCE_KEYS)}")
+    parser.add_argument("--linear-from", default=None, metavar="CKPT",
+                        help="take the velocity and position changes from this checkpoint's network")
     args = parser.parse_args()
     try:
-        out = export_checkpoint(args.src, args.dst, args.overwrite, args.set)
+        out = export_checkpoint(args.src, args.dst, args.overwrite, args.set, args.linear_from)
     except PhysdynError as exc:  # one line, like the physdyn command
         print(f"export: {exc}", file=sys.stderr)
         raise SystemExit(2) from None

@@ -48,10 +48,8 @@ def _compose(rx: float, ry: float, rz: float, q: tuple[float, float, float, floa
     return x / n, y / n, z / n, w / n
 
 
-class SingleRollout:
-    """The weights of a ``DynamicsModel`` as numpy arrays, and its roll-out for one object.
-
-    Build it with ``SingleRollout.of(model)``, once per roll-out."""
+class _Network:
+    """One network's weights as numpy arrays, and its part of a step: LSTM, head, prior, rest gate."""
 
     def __init__(self, model: Any):
         lstm = model.predictor.lstm
@@ -66,6 +64,7 @@ class SingleRollout:
             self.layers.append((np.concatenate([w_ih.T, w_hh.T]), bias))
         self.head_weight = f(model.head.linear.weight).T.copy()
         self.head_bias = f(model.head.linear.bias)
+        self.residual_mask = f(model.residual_mask)  # model.residual_channels
         self.hidden = int(model.predictor.config.hidden)
         self.velocity_shift = f(model.velocity_shift)
         self.velocity_scale = f(model.velocity_scale)
@@ -75,15 +74,87 @@ class SingleRollout:
         self.encoder_width = int(model.encoder.out_dim)
         m = model.config.model
         self.prior, self.gate_linear, self.gate_angular = m.prior, float(m.residual_gate_linear), float(m.residual_gate_angular)
+        self.gated = self.prior != "none" and (self.gate_linear > 0 or self.gate_angular > 0)
         self.uses_shape_prior = model.uses_shape_prior
         self.predicts_topple = model.predicts_topple
         self.prior_args = (model.prior_dt, model.prior_friction, model.prior_gravity)
 
+    def start(self, code: np.ndarray) -> None:
+        """A roll-out of the shape ``code`` (this network's part of the shape code) begins."""
+        shape, self.geometry = code[: self.encoder_width], code[self.encoder_width:].tolist()
+        # The shape's part of the first layer's input is the same at every step: multiply it once.
+        weight0, bias0 = self.layers[0]
+        n, m = self.varying, self.varying + len(shape)
+        self.run_layers = [(np.concatenate([weight0[:n], weight0[m:]]), shape @ weight0[n:m] + bias0)] + self.layers[1:]
+        self.h = [np.zeros(self.hidden, np.float32) for _ in self.layers]
+        self.c = [np.zeros(self.hidden, np.float32) for _ in self.layers]
+        self.queued: list[np.ndarray] = []
+
+    def prior_key(self) -> tuple:
+        return (self.prior, self.uses_shape_prior, tuple(self.geometry), self.prior_args)
+
+    def _lstm(self, x: np.ndarray) -> np.ndarray:
+        H, h, c = self.hidden, self.h, self.c
+        for layer, (weight, bias) in enumerate(self.run_layers):
+            gates = np.concatenate([x, h[layer]]) @ weight + bias
+            s = expit(gates)
+            c[layer] = s[H : 2 * H] * c[layer] + s[:H] * np.tanh(gates[2 * H : 3 * H])
+            x = h[layer] = s[3 * H :] * np.tanh(c[layer])
+        return x
+
+    def step(self, vw32: np.ndarray, q32: list[float] | None, topple: bool,
+             prior: np.ndarray | None = None) -> tuple[np.ndarray, float | None, np.ndarray | None]:
+        """One step from the velocities fed (float32) and the orientation since step 0 -> (the changes SI
+        (12,) float64, the head's topple probability or None, the prior's changes SI float32 or None).
+        ``prior``: the prior's changes when another network computed the same ones."""
+        v32, w32 = vw32[:3].tolist(), vw32[3:].tolist()
+        x = (vw32 - self.velocity_shift) / self.velocity_scale
+        if self.varying > 6:
+            x = np.concatenate([x, np.array(_rotation_6d(*q32), np.float32)])
+        moving = not self.gated or (math.hypot(v32[0], v32[1]) > self.gate_linear
+                                    or math.sqrt(w32[0] ** 2 + w32[1] ** 2 + w32[2] ** 2) > self.gate_angular)
+        probability = None
+        if moving or topple:
+            for queued_x in self.queued:
+                self._lstm(queued_x)
+            self.queued.clear()
+            out = self._lstm(x) @ self.head_weight + self.head_bias
+            step = out[:12] * self.residual_mask if moving else np.zeros(12, np.float32)
+            if topple:
+                probability = 1.0 / (1.0 + math.exp(-float(out[12])))
+        else:  # below the rest gate: the input waits for the next step that needs the network
+            self.queued.append(x)
+            step = np.zeros(12, np.float32)
+        if self.prior != "none":
+            if prior is None:
+                prior = self._prior(v32, w32, q32)
+            step = step + (prior - self.change_shift32) / self.change_scale32
+        return step.astype(np.float64) * self.change_scale + self.change_shift, probability, prior
+
+    def _prior(self, v32: list[float], w32: list[float], q32: list[float] | None) -> np.ndarray:
+        if self.uses_shape_prior:
+            return np.array(_contact_changes_one(v32, w32, q32, self.geometry, *self.prior_args), np.float32)
+        out = prior_changes(self.prior, torch.tensor(v32), torch.tensor(w32), *self.prior_args)
+        return out.numpy()
+
+
+class SingleRollout:
+    """The weights of a ``DynamicsModel`` as numpy arrays, and its roll-out for one object; of a model
+    combining two networks (``linear_channels``), both, the velocity and position changes from the second.
+
+    Build it with ``SingleRollout.of(model)``, once per roll-out."""
+
+    def __init__(self, model: Any):
+        self.model = model
+        self.nets = [_Network(model)] + ([] if model.linear_channels is None else [_Network(model.linear_channels)])
+        self.predicts_topple = model.predicts_topple
+
     @staticmethod
     def supports(model: Any) -> bool:
-        """Whether this roll-out reproduces ``model``'s: an LSTM predictor, a linear head, on the CPU."""
-        return (type(model.predictor) is LSTMPredictor and type(model.head) in (ToppleHead, NoToppleHead)
-                and model.device.type == "cpu" and (model.uses_orientation or not model.uses_shape_prior))
+        """Whether this roll-out reproduces ``model``'s: LSTM predictors, linear heads, on the CPU."""
+        parts = [model] + ([] if model.linear_channels is None else [model.linear_channels])
+        return all(type(m.predictor) is LSTMPredictor and type(m.head) in (ToppleHead, NoToppleHead)
+                   and m.device.type == "cpu" and (m.uses_orientation or not m.uses_shape_prior) for m in parts)
 
     @classmethod
     def of(cls, model: Any) -> "SingleRollout":
@@ -100,69 +171,32 @@ class SingleRollout:
         Below the rest gate the network's changes are not used: without topple probabilities to report,
         such a step only queues its input, and the LSTM takes the queue before the next step that needs it
         (the same states, in the same order); a roll-out that ends at rest never runs it for its tail."""
-        code = feature[0].detach().cpu().numpy().astype(np.float32)
-        shape, geometry = code[: self.encoder_width], code[self.encoder_width:].tolist()
-        # The shape's part of the first layer's input is the same at every step: multiply it once.
-        weight0, bias0 = self.layers[0]
-        n, m = self.varying, self.varying + len(shape)
-        layers = [(np.concatenate([weight0[:n], weight0[m:]]), shape @ weight0[n:m] + bias0)] + self.layers[1:]
-        H = self.hidden
-        h = [np.zeros(H, np.float32) for _ in self.layers]
-        c = [np.zeros(H, np.float32) for _ in self.layers]
+        for net, (_, part) in zip(self.nets, self.model.network_codes(feature[0:1])):
+            net.start(part[0].detach().cpu().numpy().astype(np.float32))
+        shared = len(self.nets) > 1 and self.nets[0].prior_key() == self.nets[1].prior_key()
         v, w = [float(x) for x in v0], [float(x) for x in w0]
         turn = (0.0, 0.0, 0.0, 1.0)
         K = 0 if warm_v is None else len(warm_v)
         changes = np.empty((steps, 12))
         fed = np.empty((steps, 6))
         topple = np.empty(steps) if self.predicts_topple and topple else None
-        gated = self.prior != "none" and (self.gate_linear > 0 or self.gate_angular > 0)
-        queued: list[np.ndarray] = []
-
-        def lstm(x: np.ndarray) -> np.ndarray:
-            for layer, (weight, bias) in enumerate(layers):
-                gates = np.concatenate([x, h[layer]]) @ weight + bias
-                s = expit(gates)
-                c[layer] = s[H : 2 * H] * c[layer] + s[:H] * np.tanh(gates[2 * H : 3 * H])
-                x = h[layer] = s[3 * H :] * np.tanh(c[layer])
-            return x
-
+        tracks_turn = self.nets[0].varying > 6
         for t in range(steps):
             if 1 <= t <= K:
                 v, w = [float(x) for x in warm_v[t - 1]], [float(x) for x in warm_w[t - 1]]
             fed[t, :3], fed[t, 3:] = v, w
             vw32 = np.array(v + w, np.float32)  # the module is fed float32
-            v32, w32 = vw32[:3].tolist(), vw32[3:].tolist()
-            x = (vw32 - self.velocity_shift) / self.velocity_scale
-            q32 = None
-            if self.varying > 6:
-                q32 = np.array(turn, np.float32).tolist()
-                x = np.concatenate([x, np.array(_rotation_6d(*q32), np.float32)])
-            moving = not gated or (math.hypot(v32[0], v32[1]) > self.gate_linear
-                                   or math.sqrt(w32[0] ** 2 + w32[1] ** 2 + w32[2] ** 2) > self.gate_angular)
-            if moving or topple is not None:
-                for queued_x in queued:
-                    lstm(queued_x)
-                queued.clear()
-                out = lstm(x) @ self.head_weight + self.head_bias
-                step = out[:12] if moving else np.zeros(12, np.float32)
-            else:
-                queued.append(x)
-                step = np.zeros(12, np.float32)
-            if self.prior != "none":
-                step = step + (self._prior(v32, w32, q32, geometry) - self.change_shift32) / self.change_scale32
-            si = step.astype(np.float64) * self.change_scale + self.change_shift
+            q32 = np.array(turn, np.float32).tolist() if tracks_turn else None
+            si, probability, prior = self.nets[0].step(vw32, q32, topple is not None)
+            if len(self.nets) > 1:  # velocity and position from the linear channels' network
+                linear = self.nets[1].step(vw32, q32, False, prior if shared else None)[0]
+                si[0:3], si[6:9] = linear[0:3], linear[6:9]
             changes[t] = si
             if topple is not None:
-                topple[t] = 1.0 / (1.0 + math.exp(-float(out[12])))
+                topple[t] = probability
             d = si.tolist()
-            if self.varying > 6:  # R_{t+1} R_0^T = Exp(dtheta_t) R_t R_0^T, as the pose is integrated
+            if tracks_turn:  # R_{t+1} R_0^T = Exp(dtheta_t) R_t R_0^T, as the pose is integrated
                 turn = _compose(d[9], d[10], d[11], turn)
             v = [v[0] + d[0], v[1] + d[1], v[2] + d[2]]
             w = [w[0] + d[3], w[1] + d[4], w[2] + d[5]]
         return {"changes": changes[None], "fed": fed[None], "topple_probability": None if topple is None else topple[None]}
-
-    def _prior(self, v32: list[float], w32: list[float], q32: list[float] | None, geometry: list[float]) -> np.ndarray:
-        if self.uses_shape_prior:
-            return np.array(_contact_changes_one(v32, w32, q32, geometry, *self.prior_args), np.float32)
-        out = prior_changes(self.prior, torch.tensor(v32), torch.tensor(w32), *self.prior_args)
-        return out.numpy()

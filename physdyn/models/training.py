@@ -23,7 +23,7 @@ from physdyn.data.datamodule import DynamicsDataModule
 from physdyn.data.normalization import NORMALIZATION_MODES, Normalization
 from physdyn.models.checkpoint_file import read_checkpoint
 from physdyn.models.losses import LOSS_KINDS
-from physdyn.models.priors import CONTACT_INERTIA, PRIORS, SHAPE_PRIORS
+from physdyn.models.priors import CONTACT_INERTIA, PRIORS, RESIDUAL_CHANNELS, SHAPE_PRIORS
 from physdyn.data.store import StoreData
 from physdyn.errors import ConfigError, PhysdynError
 from physdyn.models.dynamics_module import DynamicsModel
@@ -51,6 +51,7 @@ def validate_experiment_config(cfg: ExperimentConfig) -> ExperimentConfig:
         registry.resolve_config(comp.name, comp.params, f"model.{section}.params", name_key=f"model.{section}.name")
     choices = (("loss.kind", cfg.loss.kind, LOSS_KINDS), ("model.prior", m.prior, PRIORS),
                ("model.contact_inertia", m.contact_inertia, CONTACT_INERTIA),
+               ("model.residual_channels", m.residual_channels, RESIDUAL_CHANNELS),
                ("data.normalization", cfg.data.normalization, NORMALIZATION_MODES))
     for key, value, allowed in choices:
         if value not in allowed:
@@ -59,6 +60,9 @@ def validate_experiment_config(cfg: ExperimentConfig) -> ExperimentConfig:
         value = getattr(m, key)
         if not (value >= 0 and np.isfinite(value)):
             raise ConfigError(f"config key 'model.{key}': a speed >= 0, got {value}")
+    if m.residual_channels != "all" and m.prior == "none":
+        raise ConfigError(f"config key 'model.residual_channels': '{m.residual_channels}' leaves channels to a prior; "
+                          "set model.prior (e.g. contact) or residual_channels=all")
     if m.prior in SHAPE_PRIORS and not m.orientation_input:
         raise ConfigError(f"config key 'model.prior': '{m.prior}' turns the footprint with the object; set model.orientation_input=true")
     for key, value in (("rollout.feedback", cfg.rollout.feedback), ("data.first_window_fraction", cfg.data.first_window_fraction)):

@@ -39,6 +39,7 @@ LEVERS = [
     ["model.prior=contact", "model.orientation_input=true", "model.contact_inertia=body"],
     ["model.prior=planar", "model.residual_gate_linear=0.1", "model.residual_gate_angular=1.0"],
     ["model.prior=contact", "model.orientation_input=true", "data.yaw_augment=true"],
+    ["model.prior=contact", "model.orientation_input=true", "model.residual_channels=linear"],
 ]
 
 

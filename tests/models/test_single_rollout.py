@@ -20,6 +20,7 @@ RECIPES = [
      "model.residual_gate_angular=1.0"],
     ["model.prior=planar", "data.normalization=std_inputs"],
     ["model.prior=none", "model.head.name=no_topple"],
+    ["model.prior=contact", "model.orientation_input=true", "model.residual_channels=linear"],
 ]
 
 
