@@ -68,6 +68,9 @@ def collect_meshes(folder: Path, random_count: int, random_from: int = 0, named:
         if not path.is_file():
             continue
         mesh = trimesh.load(path, force="mesh")
+        if len(mesh.faces) == 0:  # random_urdfs/168 holds no faces trimesh reads
+            print(f"skipped {name}: no faces")
+            continue
         mesh.apply_scale(scale)
         extent = float(mesh.extents.max())
         if not SIZE_RANGE[0] <= extent <= SIZE_RANGE[1]:
