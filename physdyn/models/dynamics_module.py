@@ -33,7 +33,8 @@ from physdyn.registry import ENCODERS, HEADS, PREDICTORS
 
 
 # model.residual_channels -> which of [dv (3), dw (3), dp (3), dtheta (3)] the network's residual corrects
-RESIDUAL_MASKS = {"all": [1.0] * 12, "linear": [1.0] * 3 + [0.0] * 3 + [1.0] * 3 + [0.0] * 3}
+RESIDUAL_MASKS = {"all": [1.0] * 12, "linear": [1.0] * 3 + [0.0] * 3 + [1.0] * 3 + [0.0] * 3,
+                  "angular": [0.0] * 3 + [1.0] * 3 + [0.0] * 3 + [1.0] * 3}
 RESIDUAL_MASKS_T = {k: torch.tensor(v) for k, v in RESIDUAL_MASKS.items()}
 
 

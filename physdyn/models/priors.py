@@ -40,7 +40,7 @@ from physdyn.models.rotations import rotate
 
 PRIORS = ("none", "kinematic", "coulomb", "planar", "contact")
 SHAPE_PRIORS = ("contact",)  # priors that read the point cloud and the orientation since it was taken
-RESIDUAL_CHANNELS = ("all", "linear")  # what the network's residual corrects (model.residual_channels)
+RESIDUAL_CHANNELS = ("all", "linear", "angular")  # what the network's residual corrects (model.residual_channels)
 CONTACT_INERTIA = ("points", "body")  # where the contact prior's spin inertia comes from (model.contact_inertia)
 
 # The contact prior's constants (see the module docstring; fitted on the quickstart store's training split).

@@ -1,4 +1,4 @@
-"""The network's residual on the linear channels only (``model.residual_channels=linear``), and a model that
+"""The network's residual on some channels only (``model.residual_channels``), and a model that
 takes its velocity and position changes from a second network (``export --linear-from``)."""
 
 from __future__ import annotations
@@ -61,8 +61,10 @@ def _window(data):
     return batch["points"], batch["linear_velocity"], batch["angular_velocity"], batch["relative_orientation_xyzw"]
 
 
-def test_a_linear_residual_leaves_spin_and_rotation_to_the_prior(tiny_store, tmp_path, data):
-    model = _model(tiny_store, tmp_path, data, "model.residual_channels=linear")
+@pytest.mark.parametrize("channels", ["linear", "angular"])
+def test_a_residual_on_some_channels_leaves_the_others_to_the_prior(tiny_store, tmp_path, data, channels):
+    kept, prior_only = (LINEAR, ANGULAR) if channels == "linear" else (ANGULAR, LINEAR)
+    model = _model(tiny_store, tmp_path, data, f"model.residual_channels={channels}")
     plain = _model(tiny_store, tmp_path, data)  # the same weights (same seed), every channel corrected
     points, v, w, q = _window(data)
     with torch.no_grad():
@@ -70,18 +72,18 @@ def test_a_linear_residual_leaves_spin_and_rotation_to_the_prior(tiny_store, tmp
         prior = (model.analytic_prior(v, w, q, geometry) - model.change_shift) / model.change_scale
     changes, _, _ = model(model.encode(points), v, w, None, q)  # eval mode (batch norm), with gradients
     moving = model.rest_gate(v, w)
-    torch.testing.assert_close(changes[..., ANGULAR], prior[..., ANGULAR])
+    torch.testing.assert_close(changes[..., prior_only], prior[..., prior_only])
     with torch.no_grad():
         mixed = plain.eval()(plain.encode(points), v, w, None, q)[0]
-    assert (mixed[..., ANGULAR] - prior[..., ANGULAR])[moving].abs().max() > 1e-3  # the plain model corrects them
-    torch.testing.assert_close(changes.detach()[..., LINEAR], mixed[..., LINEAR], rtol=1e-5, atol=1e-5)
+    assert (mixed[..., prior_only] - prior[..., prior_only])[moving].abs().max() > 1e-3  # the plain model corrects them
+    torch.testing.assert_close(changes.detach()[..., kept], mixed[..., kept], rtol=1e-5, atol=1e-5)
     changes.square().sum().backward()  # no gradient reaches the rows of channels it does not correct
     grad = model.head.linear.weight.grad
-    assert grad[ANGULAR].abs().sum() == 0 and grad[LINEAR].abs().sum() > 0
+    assert grad[prior_only].abs().sum() == 0 and grad[kept].abs().sum() > 0
 
 
 def test_residual_channels_is_checked(tiny_store, tmp_path):
-    for bad in (["model.residual_channels=angular"], ["model.prior=none", "model.residual_channels=linear"]):
+    for bad in (["model.residual_channels=spin"], ["model.prior=none", "model.residual_channels=linear"]):
         with pytest.raises(ConfigError, match=r"model\.residual_channels") as info:
             load_experiment_config(QUICKSTART, shrunk_overrides(tiny_store, tmp_path, *bad))
         assert "\n" not in str(info.value)
