@@ -409,9 +409,9 @@ class ModelConfig:
     # shapes, a mesh given to `physdyn predict`) and the estimate elsewhere. docs/ablations.md.
     contact_inertia: str = "points"
     # With a prior: the channels the network's residual corrects. "all" (velocity, spin, position, rotation),
-    # "linear" (velocity and position; spin and rotation are the prior's) or "angular" (spin and rotation). A "linear" network gave the
-    # best positions measured; `python -m physdyn.models.export --linear-from` combines one with a model whose
-    # spin and rotation are better (docs/ablations.md, "Two networks").
+    # "linear" (velocity and position; spin and rotation are the prior's) or "angular" (spin and rotation).
+    # A "linear" network gave the best positions measured; `python -m physdyn.models.export --linear-from`
+    # combines one with a model whose spin and rotation are better (docs/ablations.md, "Two networks").
     residual_channels: str = "all"
 
 

@@ -128,7 +128,6 @@ class DynamicsModel(LightningModule):
         state = checkpoint.get("state_dict", {})
         for name in ("change_shift", "velocity_shift"):
             state.setdefault(name, torch.zeros_like(getattr(self, name)))
-        for name in ("change_shift", "velocity_shift"):
             if checkpoint.get("linear_channels"):
                 state.setdefault(f"linear_channels.{name}", torch.zeros_like(getattr(self, name)))
         if checkpoint.get("topple_classifier"):

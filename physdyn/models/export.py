@@ -2,7 +2,7 @@
 
     python -m physdyn.models.export runs/quickstart/best.ckpt physdyn/assets/bundled.ckpt
     python -m physdyn.models.export runs/bundled/best.ckpt physdyn/assets/bundled.ckpt --set model.contact_inertia=body
-    python -m physdyn.models.export runs/bundled/topple.ckpt physdyn/assets/bundled.ckpt --linear-from runs/bundled_linear/best.ckpt
+    python -m physdyn.models.export runs/bundled/topple.ckpt physdyn/assets/bundled.ckpt --linear-from runs/quickstart_linear/best.ckpt
 
 ``--set`` changes a setting that acts at inference only (chosen on validation after training, as the
 bundled model's rest gate was) or the model's name in reports: ``INFERENCE_KEYS``; the weights stay as
