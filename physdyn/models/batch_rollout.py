@@ -19,6 +19,7 @@ from typing import Any
 import torch
 
 from physdyn.models.predictors.lstm import LSTMPredictor
+from physdyn.models.priors import RESIDUAL_MASKS
 from physdyn.models.rotations import quat_multiply, rotvec_to_quat
 
 
@@ -83,7 +84,7 @@ def batch_rollout(model: Any, points: Any, linear_velocity0: Any, angular_veloci
     return {"changes": changes, "fed": fed, "topple_probability": topple_out}
 
 
-LINEAR = torch.tensor([True] * 3 + [False] * 3 + [True] * 3 + [False] * 3)  # of [dv, dw, dp, dtheta]
+LINEAR = torch.tensor(RESIDUAL_MASKS["linear"]) > 0  # the changes a combined model takes from its second network
 
 
 class _Rows:

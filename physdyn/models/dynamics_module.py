@@ -22,20 +22,14 @@ from physdyn.config import ExperimentConfig, config_from_dict, to_dict
 from physdyn.data.normalization import Normalization
 from physdyn.data.windows import DELTA_KEYS
 from physdyn.errors import ConfigError
-from physdyn.models.batch_rollout import batch_rollout
+from physdyn.models.batch_rollout import LINEAR, batch_rollout
 from physdyn.models.losses import dynamics_loss
 from physdyn.models.optimizer import adam_with_schedule
-from physdyn.models.priors import SHAPE_PRIORS, contact_changes, contact_geometry, prior_changes
+from physdyn.models.priors import RESIDUAL_MASKS, SHAPE_PRIORS, contact_changes, contact_geometry, prior_changes
 from physdyn.models.rotations import rotation_6d
 from physdyn.models.single_rollout import SingleRollout
 from physdyn.models.topple_classifier import ToppleClassifier
 from physdyn.registry import ENCODERS, HEADS, PREDICTORS
-
-
-# model.residual_channels -> which of [dv (3), dw (3), dp (3), dtheta (3)] the network's residual corrects
-RESIDUAL_MASKS = {"all": [1.0] * 12, "linear": [1.0] * 3 + [0.0] * 3 + [1.0] * 3 + [0.0] * 3,
-                  "angular": [0.0] * 3 + [1.0] * 3 + [0.0] * 3 + [1.0] * 3}
-RESIDUAL_MASKS_T = {k: torch.tensor(v) for k, v in RESIDUAL_MASKS.items()}
 
 
 @dataclass
@@ -257,7 +251,7 @@ class DynamicsModel(LightningModule):
         theirs, _, other_state = other(other_code, linear_velocity, angular_velocity, other_state,
                                        orientation if other.uses_orientation else None)
         theirs = (theirs * other.change_scale + other.change_shift - self.change_shift) / self.change_scale
-        changes = torch.where(RESIDUAL_MASKS_T["linear"].to(changes.device) > 0, theirs, changes)
+        changes = torch.where(LINEAR.to(changes.device), theirs, changes)
         return changes, logit, (own_state, other_state)
 
     def split_code(self, code: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:

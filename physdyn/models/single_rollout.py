@@ -24,7 +24,10 @@ from scipy.special import expit
 
 from physdyn.models.heads.topple import NoToppleHead, ToppleHead
 from physdyn.models.predictors.lstm import LSTMPredictor
-from physdyn.models.priors import _contact_changes_one, prior_changes
+from physdyn.models.priors import RESIDUAL_MASKS, _contact_changes_one, prior_changes
+
+
+LINEAR = np.array(RESIDUAL_MASKS["linear"]) > 0  # the changes a combined model takes from its second network
 
 
 def _rotation_6d(x: float, y: float, z: float, w: float) -> list[float]:
@@ -191,7 +194,7 @@ class SingleRollout:
             si, probability, prior = self.nets[0].step(vw32, q32, topple is not None)
             if len(self.nets) > 1:  # velocity and position from the linear channels' network
                 linear = self.nets[1].step(vw32, q32, False, prior if shared else None)[0]
-                si[0:3], si[6:9] = linear[0:3], linear[6:9]
+                si[LINEAR] = linear[LINEAR]
             changes[t] = si
             if topple is not None:
                 topple[t] = probability
