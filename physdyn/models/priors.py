@@ -193,18 +193,23 @@ def _contact_substeps(linear_velocity: torch.Tensor, angular_velocity: torch.Ten
     # at slip_scale alone, a contact far from the vertical through the centre of mass overshot, and a body
     # at rest swapped ever larger slide and spin between sub-steps (x4 per two at r^2 / I = 4).
     stick = slip_scale * (1.0 + (weights * (r.abs() ** 2)).sum(-1, keepdim=True) / spin_inertia[..., None])
-    rr = r
+    # The loop runs once per sub-step on small tensors, so its cost is the number of operations: a point r
+    # of a body spinning at w_z moves at u + w_z i r, so i r is what is carried and turned; positions and
+    # yaw are summed and scaled by the sub-step once, at the end.
+    spun_r = 1j * r
+    unit = torch.ones_like(om0)
+    u_sum, om_sum = torch.zeros_like(u0), torch.zeros_like(om0)
     for _ in range(CONTACT_SUBSTEPS):
-        rel = u + 1j * om * rr
-        slip = rel.abs()
-        pull = weights * rel * ((slip / stick).clamp(max=1.0) / slip.clamp_min(1e-9))
+        rel = u + om * spun_r
+        # min(slip / stick, 1) / slip: full friction above the stick speed, scaled down with the slip below
+        pull = rel * (weights / torch.maximum(rel.abs(), stick))
         u = u - decel * h * pull.sum(-1, keepdim=True)  # force per unit mass
-        spun = om - stiffness * (rr.conj() * pull).sum(-1, keepdim=True).imag
-        om = torch.where(spun * om < 0, torch.zeros_like(om), spun)  # friction stops a spin, never reverses it
-        dp = dp + u * h
-        step_turn = om * h
-        yaw = yaw + step_turn
-        rr = rr * torch.polar(torch.ones_like(step_turn), step_turn)
+        spun = om - stiffness * (spun_r.conj() * pull).sum(-1, keepdim=True).real  # Re(conj(i r) f) = Im(conj(r) f)
+        om = torch.where(spun * om < 0, 0.0, spun)  # friction stops a spin, never reverses it
+        u_sum = u_sum + u
+        om_sum = om_sum + om
+        spun_r = spun_r * torch.polar(unit, om * h)
+    dp, yaw = u_sum * h, om_sum * h
     zeros1 = torch.zeros_like(om0)
     du = u - u0
     return torch.cat([du.real, du.imag, -v[..., 2:3], -w[..., :2], om - om0,
@@ -257,8 +262,7 @@ def _contact_changes_one(v: list, w: list, q: list, geometry: list, dt: float, f
         for wk, rk in pairs:
             rel = u + 1j * om * rk
             slip = abs(rel)
-            # min(slip / stick, 1) / max(slip, 1e-9), with comparisons instead of calls
-            pk = wk * rel * ((slip / stick if slip < stick else 1.0) / (slip if slip > 1e-9 else 1e-9))
+            pk = wk * rel / (slip if slip > stick else stick)  # min(slip / stick, 1) / slip
             pull += pk
             torque += rk.real * pk.imag - rk.imag * pk.real  # Im(conj(r) f)
         u = u - decel * h * pull
