@@ -10,9 +10,7 @@ instead of the points within 5 mm of the lowest one. Patches ``contact_geometry`
 import sys, torch, numpy as np
 from scipy.spatial import ConvexHull, QhullError
 import physdyn.models.priors as pri
-TOL = float(sys.argv[1].rstrip("p")); which = sys.argv[2]
-PERIMETER = sys.argv[1].endswith("p")  # e.g. 0.001p: the outline's corners only
-def touching_mask(P):  # P (N, 3) numpy
+def touching_mask(P, TOL, PERIMETER=False):  # P (N, 3) numpy; PERIMETER: the outline's corners only
     z = P[:, 2]; band = z <= z.min() + pri.SUPPORT_DEPTH
     try:
         hull = ConvexHull(P)
@@ -36,25 +34,32 @@ def touching_mask(P):  # P (N, 3) numpy
         on = np.zeros_like(on)
         on[corners] = True
     return on
-orig = pri.contact_geometry
-def patched(points):
-    masks = np.stack([touching_mask(p) for p in points.detach().cpu().numpy().astype(np.float64)])
-    return orig(points, torch.from_numpy(masks).to(points.device))
-pri.contact_geometry = patched
-import physdyn.models.dynamics_module as dm
-dm.contact_geometry = patched
-if which in ("val", "test", "prior-val", "prior-test"):
-    from physdyn.eval.evaluate import evaluate
-    from physdyn.predict.predictor import BUNDLED_CHECKPOINT
-    split = which.split("-")[-1]
-    if which.startswith("prior"):
-        sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parents[1])); from priors import prior_only_model; from physdyn.data.store import load_store
-        st = load_store("data/quickstart.zarr"); m = prior_only_model("contact", st)
+def main():
+    TOL = float(sys.argv[1].rstrip("p")); which = sys.argv[2]
+    PERIMETER = sys.argv[1].endswith("p")  # e.g. 0.001p: the outline's corners only
+    orig = pri.contact_geometry
+    def patched(points):
+        masks = np.stack([touching_mask(p, TOL, PERIMETER) for p in points.detach().cpu().numpy().astype(np.float64)])
+        return orig(points, torch.from_numpy(masks).to(points.device))
+    pri.contact_geometry = patched
+    import physdyn.models.dynamics_module as dm
+    dm.contact_geometry = patched
+    if which in ("val", "test", "prior-val", "prior-test"):
+        from physdyn.eval.evaluate import evaluate
+        from physdyn.predict.predictor import BUNDLED_CHECKPOINT
+        split = which.split("-")[-1]
+        if which.startswith("prior"):
+            sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parents[1])); from priors import prior_only_model; from physdyn.data.store import load_store
+            st = load_store("data/quickstart.zarr"); m = prior_only_model("contact", st)
+        else:
+            m = str(BUNDLED_CHECKPOINT); st = "data/quickstart.zarr"
+        h = evaluate(m, st, split=split)["headline"]
+        print(f"TOL={TOL} {which}: {100*h['final_position_m_median']:.2f} cm {h['final_rotation_deg_median']:.1f} deg")
     else:
-        m = str(BUNDLED_CHECKPOINT); st = "data/quickstart.zarr"
-    h = evaluate(m, st, split=split)["headline"]
-    print(f"TOL={TOL} {which}: {100*h['final_position_m_median']:.2f} cm {h['final_rotation_deg_median']:.1f} deg")
-else:
-    sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parents[1])); import external_meshes as em
-    sys.argv = ["x"] + (["--work", "runs/external_val", "--random", "60", "--random-from", "30", "--no-named"] if which == "extval" else []) + sys.argv[3:]
-    print(f"TOL={TOL} {which}"); em.main()
+        sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parents[1])); import external_meshes as em
+        sys.argv = ["x"] + (["--work", "runs/external_val", "--random", "60", "--random-from", "30", "--no-named"] if which == "extval" else []) + sys.argv[3:]
+        print(f"TOL={TOL} {which}"); em.main()
+
+
+if __name__ == "__main__":
+    main()
