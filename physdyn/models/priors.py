@@ -167,8 +167,6 @@ def _contact_substeps(linear_velocity: torch.Tensor, angular_velocity: torch.Ten
     u0 = torch.complex(v[..., 0], v[..., 1])[..., None]  # (B, T, 1)
     om0 = w[..., 2:3]
     u, om = u0, om0
-    dp = torch.zeros_like(u0)
-    yaw = torch.zeros_like(om0)
     # Pressure: the base weights tilted linearly across the footprint so that the centre of pressure lies
     # under the centre of mass (moment balance), leaning towards the travel while sliding. The 2 x 2
     # spread of the footprint (regularised by 1 mm^2 for line or point contacts) gives the tilt.
