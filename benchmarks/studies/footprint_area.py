@@ -1,0 +1,190 @@
+"""The contact prior's footprint as the 4 touching points spanning the largest area (greedily, as Bullet's
+contact manifold keeps its points) instead of farthest-point sampling. Patches ``contact_geometry`` for
+this run only.
+
+    python benchmarks/studies/footprint_area.py val [band|facet]   # quickstart validation: the prior alone, the bundled model
+    python benchmarks/studies/footprint_area.py extval [band|facet]  # the bundled model on the external validation set
+    python benchmarks/studies/footprint_area.py hull STORE           # the prior alone on a store of meshes, footprint
+                                                                     # from the cloud or from the mesh's convex-hull face
+    python benchmarks/studies/footprint_area.py spin STORE           # every 6th mesh spun in place: PyBullet and the prior
+    python benchmarks/studies/footprint_area.py run SCRIPT [ARGS]    # another study under the patch (band), e.g.
+                                                                     # spin_primitives.py or spin_decel.py
+
+``band``: among the cloud points within 5 mm of the lowest (the shipped candidates); ``facet``: among those
+within 1 mm of the cloud's convex-hull facet under the centre of mass (``footprint_facet.py``). ``hull``
+rolls the prior alone out (no network) from each non-toppling push's step-0 state and prints the median
+final rotation error with the shipped footprint, with the 4 largest-area vertices of the mesh's own
+convex-hull face the body rests on (what the simulator collides), and with that face only where it has 3
+or more vertices.
+"""
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+import trimesh
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE.parent))
+import physdyn.models.dynamics_module as dm  # noqa: E402
+import physdyn.models.priors as pri  # noqa: E402
+from footprint_facet import touching_mask  # noqa: E402
+
+SHIPPED = pri.contact_geometry
+
+
+def area_geometry(points, touching=None):
+    """``contact_geometry`` with the footprint's 4 points chosen for area: the touching point farthest from
+    the vertical through the centre of mass, the one farthest from it, then the farthest on each side of
+    the line between them (a point within 1 mm of that line adds no area and no weight)."""
+    B, N, _ = points.shape
+    z = points[..., 2]
+    zmin = z.min(dim=1, keepdim=True).values
+    if touching is None:
+        touching = z <= zmin + pri.SUPPORT_DEPTH
+    xy = points[..., :2]
+    at = lambda i: torch.gather(xy, 1, i[:, None, None].expand(-1, 1, 2))[:, 0]  # noqa: E731
+    first = torch.argmax((xy ** 2).sum(-1).masked_fill(~touching, -1.0), dim=1)
+    second = torch.argmax(((xy - at(first)[:, None]) ** 2).sum(-1).masked_fill(~touching, -1.0), dim=1)
+    p1, d = at(first), at(second) - at(first)
+    side = d[:, None, 0] * (xy[..., 1] - p1[:, None, 1]) - d[:, None, 1] * (xy[..., 0] - p1[:, None, 0])
+    third = torch.argmax(side.masked_fill(~touching, -float("inf")), dim=1)
+    fourth = torch.argmin(side.masked_fill(~touching, float("inf")), dim=1)
+    length = d.norm(dim=-1)
+    s3, s4 = (torch.gather(side, 1, i[:, None])[:, 0] for i in (third, fourth))
+    fresh = torch.stack([torch.ones_like(length, dtype=torch.bool), length > 1e-9, s3 > 1e-3 * length, -s4 > 1e-3 * length], 1)
+    index = torch.stack([first, second, third, fourth], 1)
+    support = torch.gather(points, 1, index[..., None].expand(-1, -1, 3))
+    weights = fresh.to(points.dtype) / fresh.sum(dim=1, keepdim=True)
+    spin_inertia = pri.SPIN_INERTIA * (xy ** 2).sum(-1).mean(dim=1, keepdim=True)
+    return torch.cat([support.reshape(B, -1), weights, spin_inertia.clamp_min(1e-8), -zmin], dim=1)
+
+
+def patch(candidates: str) -> None:
+    def geometry(points, touching=None):
+        if touching is None and candidates == "facet":
+            masks = np.stack([touching_mask(p, 0.001) for p in points.detach().cpu().numpy().astype(np.float64)])
+            touching = torch.from_numpy(masks).to(points.device)
+        return area_geometry(points, touching)
+    pri.contact_geometry = geometry
+    dm.contact_geometry = geometry
+
+
+def hull_rollouts(path: str) -> None:
+    from physdyn.data.store import load_store
+    from physdyn.data.windows import store_spin_inertia, world_oriented_points
+    from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_matrix
+    from physdyn.models.rotations import quat_multiply as turn_by, rotvec_to_quat
+
+    store = load_store(path)
+    sims = np.flatnonzero(~store.toppled)
+    start, end = store.start[sims], store.start[sims + 1]
+    q0 = store.orientation_xyzw[start]
+    cloud = torch.tensor(world_oriented_points(store.points[store.shape_id[sims]][:, :256], q0), dtype=torch.float32)
+    shipped = SHIPPED(cloud)
+    hulls, vertices, face = {}, np.zeros(len(sims), int), []
+    for i, sim in enumerate(sims):
+        shape = store.shape_id[sim]
+        if shape not in hulls:
+            hulls[shape] = np.asarray(trimesh.load(store.source[shape], force="mesh").convex_hull.vertices) - store.com_mesh[shape]
+        V = hulls[shape] @ quat_to_matrix(q0[i]).T
+        touching = V[:, 2] <= V[:, 2].min() + 5e-4
+        vertices[i] = touching.sum()
+        face.append(area_geometry(torch.tensor(V[None], dtype=torch.float32), torch.tensor(touching[None]))[0])
+    face = torch.stack(face)
+    mixed = torch.where(torch.tensor(vertices >= 3)[:, None], face, shipped)
+    true_turn = quat_multiply(store.orientation_xyzw[end - 1], quat_conjugate(q0))
+    inertia = torch.tensor(store_spin_inertia(store, sims, q0), dtype=torch.float32)
+    print(f"{path}: {len(sims)} non-toppling pushes, {int((vertices < 3).sum())} resting on a hull face of < 3 vertices; "
+          "the prior alone, median final rotation error (deg)")
+    for name, geometry in (("cloud band, farthest points (shipped)", shipped), ("mesh hull face, largest area", face),
+                           ("hull face where >= 3 vertices, else shipped", mixed)):
+        geometry = geometry.clone()
+        geometry[:, 16] = inertia  # the body's own I_zz / m, as the bundled model
+        v = torch.tensor(store.linear_velocity[start], dtype=torch.float32)[:, None]
+        w = torch.tensor(store.angular_velocity[start], dtype=torch.float32)[:, None]
+        turn = torch.zeros(len(sims), 1, 4)
+        turn[..., 3] = 1.0
+        turns = [turn[:, 0].numpy().astype(np.float64)]
+        for _ in range(int((end - start).max()) - 1):
+            with torch.no_grad():
+                c = pri.contact_changes(v, w, turn, geometry, 1 / store.rate_hz, float(np.median(store.friction)))
+            v, w = v + c[..., :3], w + c[..., 3:6]
+            turn = turn_by(rotvec_to_quat(c[..., 9:12]), turn)
+            turn = turn / turn.norm(dim=-1, keepdim=True)
+            turns.append(turn[:, 0].numpy().astype(np.float64))
+        final = np.stack(turns, 1)[np.arange(len(sims)), end - start - 1]
+        miss = quat_multiply(final, quat_conjugate(true_turn))
+        error = np.degrees(2 * np.arccos(np.clip(np.abs(miss[:, 3]), 0, 1)))
+        print(f"  {name:<45} all {np.median(error):5.1f}; faces of < 3 vertices {np.median(error[vertices < 3]):5.1f}, "
+              f">= 3 {np.median(error[vertices >= 3]):5.1f}", flush=True)
+
+
+def spin_in_place(path: str, w0: float = 10.0) -> None:
+    """Every 6th mesh of a store, in its first push's resting pose, given a spin w0 about the vertical and
+    nothing else: w_z over 5 steps in PyBullet and by the prior with either footprint."""
+    from physdyn.data.store import load_store
+    from physdyn.data.windows import store_spin_inertia, world_oriented_points
+    from physdyn.geometry.rotations import quat_to_matrix
+    from physdyn.predict.body import prepare_body
+    from physdyn.predict.simulator import simulate_from_state
+
+    store = load_store(path)
+
+    def spins(geometry):
+        v, w, q = torch.zeros(1, 1, 3), torch.tensor([[[0.0, 0.0, w0]]]), torch.tensor([[[0.0, 0.0, 0.0, 1.0]]])
+        out = [w0]
+        for _ in range(5):
+            with torch.no_grad():
+                c = pri.contact_changes(v, w, q, geometry, 1 / store.rate_hz, float(np.median(store.friction)))
+            v, w = v + c[..., :3], w + c[..., 3:6]
+            out.append(w[0, 0, 2].item())
+        return np.round(out, 2)
+
+    for shape in range(0, store.num_shapes, 6):
+        sim = int(np.flatnonzero(store.shape_id == shape)[0])
+        q0 = store.orientation_xyzw[store.start[sim]]
+        simulated = simulate_from_state(prepare_body(store.source[shape]).spec, q0, np.zeros(3), np.array([0.0, 0.0, w0]),
+                                        store.rate_hz, 6)["angular_velocity"][:, 2]
+        cloud = SHIPPED(torch.tensor(world_oriented_points(store.points[shape][:256], q0)[None], dtype=torch.float32))
+        V = (np.asarray(trimesh.load(store.source[shape], force="mesh").convex_hull.vertices) - store.com_mesh[shape]) @ quat_to_matrix(q0).T
+        touching = V[:, 2] <= V[:, 2].min() + 5e-4
+        face = area_geometry(torch.tensor(V[None], dtype=torch.float32), torch.tensor(touching[None]))
+        for g in (cloud, face):
+            g[0, 16] = float(store_spin_inertia(store, np.array([sim]), q0[None])[0])
+        print(f"shape {shape:3d}: w_z PyBullet {np.round(simulated, 2)}; prior, cloud band {spins(cloud)}; "
+              f"prior, hull face of {touching.sum()} vertices {spins(face)}", flush=True)
+
+
+def main() -> None:
+    which = sys.argv[1]
+    if which in ("hull", "spin"):
+        (hull_rollouts if which == "hull" else spin_in_place)(sys.argv[2])
+        return
+    if which == "run":
+        import runpy
+        patch("band")
+        sys.argv = sys.argv[2:]
+        runpy.run_path(str(HERE / sys.argv[0]), run_name="__main__")
+        return
+    patch(sys.argv[2] if len(sys.argv) > 2 else "band")
+    if which == "val":
+        from priors import prior_only_model
+
+        from physdyn.data.store import load_store
+        from physdyn.eval.evaluate import evaluate
+        from physdyn.predict.predictor import BUNDLED_CHECKPOINT
+        store = load_store("data/quickstart.zarr")
+        for name, model in (("the prior alone", prior_only_model("contact", store)), ("the bundled model", str(BUNDLED_CHECKPOINT))):
+            h = evaluate(model, store, split="val")["headline"]
+            print(f"{name}: {100 * h['final_position_m_median']:.2f} cm {h['final_rotation_deg_median']:.1f} deg "
+                  f"{1000 * h['position']:.2f} mm per step")
+    else:
+        import external_meshes
+        sys.argv = ["external_meshes.py", "--work", "runs/external_val", "--random", "60", "--random-from", "30", "--no-named"]
+        external_meshes.main()
+
+
+if __name__ == "__main__":
+    main()
