@@ -9,6 +9,8 @@ this run only.
     python benchmarks/studies/footprint_area.py spin STORE           # every 6th mesh spun in place: PyBullet and the prior
     python benchmarks/studies/footprint_area.py run SCRIPT [ARGS]    # another study under the patch (band), e.g.
                                                                      # spin_primitives.py or spin_decel.py
+    python benchmarks/studies/footprint_area.py fit CONFIG [OVERRIDES]  # train under the patch (band)
+    python benchmarks/studies/footprint_area.py {val,extval} band CHECKPOINT  # a model trained so, under the patch
 
 ``band``: among the cloud points within 5 mm of the lowest (the shipped candidates); ``facet``: among those
 within 1 mm of the cloud's convex-hull facet under the centre of mass (``footprint_facet.py``). ``hull``
@@ -61,6 +63,19 @@ def area_geometry(points, touching=None):
     return torch.cat([support.reshape(B, -1), weights, spin_inertia.clamp_min(1e-8), -zmin], dim=1)
 
 
+def hull_face_geometry(store, shape: int, orientation_xyzw: np.ndarray, hulls: dict) -> tuple[torch.Tensor, int]:
+    """(1, 18) footprint geometry from the 4 largest-area vertices of the mesh's convex-hull face the body
+    rests on in this orientation (what the simulator collides), and how many vertices that face has.
+    ``hulls``: a cache of hull vertices (body frame) per shape."""
+    from physdyn.geometry.rotations import quat_to_matrix
+
+    if shape not in hulls:
+        hulls[shape] = np.asarray(trimesh.load(store.source[shape], force="mesh").convex_hull.vertices) - store.com_mesh[shape]
+    V = hulls[shape] @ quat_to_matrix(orientation_xyzw).T
+    touching = V[:, 2] <= V[:, 2].min() + 5e-4
+    return area_geometry(torch.tensor(V[None], dtype=torch.float32), torch.tensor(touching[None])), int(touching.sum())
+
+
 def patch(candidates: str) -> None:
     def geometry(points, touching=None):
         if touching is None and candidates == "facet":
@@ -74,7 +89,7 @@ def patch(candidates: str) -> None:
 def hull_rollouts(path: str) -> None:
     from physdyn.data.store import load_store
     from physdyn.data.windows import store_spin_inertia, world_oriented_points
-    from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_matrix
+    from physdyn.geometry.rotations import quat_conjugate, quat_multiply
     from physdyn.models.rotations import quat_multiply as turn_by, rotvec_to_quat
 
     store = load_store(path)
@@ -85,13 +100,8 @@ def hull_rollouts(path: str) -> None:
     shipped = SHIPPED(cloud)
     hulls, vertices, face = {}, np.zeros(len(sims), int), []
     for i, sim in enumerate(sims):
-        shape = store.shape_id[sim]
-        if shape not in hulls:
-            hulls[shape] = np.asarray(trimesh.load(store.source[shape], force="mesh").convex_hull.vertices) - store.com_mesh[shape]
-        V = hulls[shape] @ quat_to_matrix(q0[i]).T
-        touching = V[:, 2] <= V[:, 2].min() + 5e-4
-        vertices[i] = touching.sum()
-        face.append(area_geometry(torch.tensor(V[None], dtype=torch.float32), torch.tensor(touching[None]))[0])
+        geometry, vertices[i] = hull_face_geometry(store, store.shape_id[sim], q0[i], hulls)
+        face.append(geometry[0])
     face = torch.stack(face)
     mixed = torch.where(torch.tensor(vertices >= 3)[:, None], face, shipped)
     true_turn = quat_multiply(store.orientation_xyzw[end - 1], quat_conjugate(q0))
@@ -126,7 +136,6 @@ def spin_in_place(path: str, w0: float = 10.0) -> None:
     nothing else: w_z over 5 steps in PyBullet and by the prior with either footprint."""
     from physdyn.data.store import load_store
     from physdyn.data.windows import store_spin_inertia, world_oriented_points
-    from physdyn.geometry.rotations import quat_to_matrix
     from physdyn.predict.body import prepare_body
     from physdyn.predict.simulator import simulate_from_state
 
@@ -148,19 +157,22 @@ def spin_in_place(path: str, w0: float = 10.0) -> None:
         simulated = simulate_from_state(prepare_body(store.source[shape]).spec, q0, np.zeros(3), np.array([0.0, 0.0, w0]),
                                         store.rate_hz, 6)["angular_velocity"][:, 2]
         cloud = SHIPPED(torch.tensor(world_oriented_points(store.points[shape][:256], q0)[None], dtype=torch.float32))
-        V = (np.asarray(trimesh.load(store.source[shape], force="mesh").convex_hull.vertices) - store.com_mesh[shape]) @ quat_to_matrix(q0).T
-        touching = V[:, 2] <= V[:, 2].min() + 5e-4
-        face = area_geometry(torch.tensor(V[None], dtype=torch.float32), torch.tensor(touching[None]))
+        face, vertices = hull_face_geometry(store, shape, q0, {})
         for g in (cloud, face):
             g[0, 16] = float(store_spin_inertia(store, np.array([sim]), q0[None])[0])
         print(f"shape {shape:3d}: w_z PyBullet {np.round(simulated, 2)}; prior, cloud band {spins(cloud)}; "
-              f"prior, hull face of {touching.sum()} vertices {spins(face)}", flush=True)
+              f"prior, hull face of {vertices} vertices {spins(face)}", flush=True)
 
 
 def main() -> None:
     which = sys.argv[1]
     if which in ("hull", "spin"):
         (hull_rollouts if which == "hull" else spin_in_place)(sys.argv[2])
+        return
+    if which == "fit":
+        from physdyn.models.training import fit, load_experiment_config
+        patch("band")
+        print(fit(load_experiment_config(sys.argv[2], sys.argv[3:])).metrics)
         return
     if which == "run":
         import runpy
@@ -176,13 +188,17 @@ def main() -> None:
         from physdyn.eval.evaluate import evaluate
         from physdyn.predict.predictor import BUNDLED_CHECKPOINT
         store = load_store("data/quickstart.zarr")
-        for name, model in (("the prior alone", prior_only_model("contact", store)), ("the bundled model", str(BUNDLED_CHECKPOINT))):
+        models = [("the prior alone", prior_only_model("contact", store)), ("the bundled model", str(BUNDLED_CHECKPOINT))]
+        if len(sys.argv) > 3:
+            models = [(sys.argv[3], sys.argv[3])]
+        for name, model in models:
             h = evaluate(model, store, split="val")["headline"]
             print(f"{name}: {100 * h['final_position_m_median']:.2f} cm {h['final_rotation_deg_median']:.1f} deg "
                   f"{1000 * h['position']:.2f} mm per step")
     else:
         import external_meshes
-        sys.argv = ["external_meshes.py", "--work", "runs/external_val", "--random", "60", "--random-from", "30", "--no-named"]
+        checkpoint = ["--checkpoint", sys.argv[3]] if len(sys.argv) > 3 else []
+        sys.argv = ["external_meshes.py", "--work", "runs/external_val", "--random", "60", "--random-from", "30", "--no-named"] + checkpoint
         external_meshes.main()
 
 
