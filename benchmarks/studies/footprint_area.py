@@ -2,8 +2,8 @@
 contact manifold keeps its points) instead of farthest-point sampling. Patches ``contact_geometry`` for
 this run only.
 
-    python benchmarks/studies/footprint_area.py val [band|facet]   # quickstart validation: the prior alone, the bundled model
-    python benchmarks/studies/footprint_area.py extval [band|facet]  # the bundled model on the external validation set
+    python benchmarks/studies/footprint_area.py val [band|facet|flat] # quickstart validation: the prior alone, the bundled model
+    python benchmarks/studies/footprint_area.py extval [band|facet|flat]  # the bundled model on the external validation set
     python benchmarks/studies/footprint_area.py hull STORE           # the prior alone on a store of meshes, footprint
                                                                      # from the cloud or from the mesh's convex-hull face
     python benchmarks/studies/footprint_area.py spin STORE           # every 6th mesh spun in place: PyBullet and the prior
@@ -13,7 +13,9 @@ this run only.
     python benchmarks/studies/footprint_area.py {val,extval} band CHECKPOINT  # a model trained so, under the patch
 
 ``band``: among the cloud points within 5 mm of the lowest (the shipped candidates); ``facet``: among those
-within 1 mm of the cloud's convex-hull facet under the centre of mass (``footprint_facet.py``). ``hull``
+within 1 mm of the cloud's convex-hull facet under the centre of mass (``footprint_facet.py``); ``flat``: the
+band chosen for area where 3 or more cloud points lie within 1 mm of the lowest (a flat face), the shipped
+footprint elsewhere. ``hull``
 rolls the prior alone out (no network) from each non-toppling push's step-0 state and prints the median
 final rotation error with the shipped footprint, with the 4 largest-area vertices of the mesh's own
 convex-hull face the body rests on (what the simulator collides), and with that face only where it has 3
@@ -78,6 +80,10 @@ def hull_face_geometry(store, shape: int, orientation_xyzw: np.ndarray, hulls: d
 
 def patch(candidates: str) -> None:
     def geometry(points, touching=None):
+        if touching is None and candidates == "flat":
+            z = points[..., 2]
+            flat = (z <= z.min(dim=1, keepdim=True).values + 0.001).sum(dim=1) >= 3
+            return torch.where(flat[:, None], area_geometry(points), SHIPPED(points))
         if touching is None and candidates == "facet":
             masks = np.stack([touching_mask(p, 0.001) for p in points.detach().cpu().numpy().astype(np.float64)])
             touching = torch.from_numpy(masks).to(points.device)
