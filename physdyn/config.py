@@ -408,6 +408,11 @@ class ModelConfig:
     # mean squared radius); "body" takes the body's mass properties where the caller knows them (a store's
     # shapes, a mesh given to `physdyn predict`) and the estimate elsewhere. docs/ablations.md.
     contact_inertia: str = "points"
+    # How the contact prior picks its 4 footprint points among the cloud's lowest: "spread" (farthest-point
+    # sampling, the presets') or "area" (the 4 spanning the largest area, as the simulator's contact manifold
+    # keeps them: finds a box face's corners; better on the procedural shapes, worse on irregular blobs;
+    # docs/ablations.md, "Where the spin is lost"). Acts at inference too: `export --set` may change it.
+    contact_footprint: str = "spread"
     # With a prior: the channels the network's residual corrects. "all" (velocity, spin, position, rotation),
     # "linear" (velocity and position; spin and rotation are the prior's) or "angular" (spin and rotation).
     # A "linear" network gave the best positions measured; `python -m physdyn.models.export --linear-from`

@@ -1,6 +1,7 @@
 """The contact prior's footprint as the 4 touching points spanning the largest area (greedily, as Bullet's
-contact manifold keeps its points) instead of farthest-point sampling. Patches ``contact_geometry`` for
-this run only.
+contact manifold keeps its points) instead of farthest-point sampling: ``model.contact_footprint=area``,
+an option since this study. Patches ``contact_geometry`` for this run only, so that the bundled model's
+weights and the prior alone use it (and, for ``facet`` and ``flat``, other candidate points).
 
     python benchmarks/studies/footprint_area.py val [band|facet|flat] # quickstart validation: the prior alone, the bundled model
     python benchmarks/studies/footprint_area.py extval [band|facet|flat]  # the bundled model on the external validation set
@@ -9,8 +10,7 @@ this run only.
     python benchmarks/studies/footprint_area.py spin STORE           # every 6th mesh spun in place: PyBullet and the prior
     python benchmarks/studies/footprint_area.py run SCRIPT [ARGS]    # another study under the patch (band), e.g.
                                                                      # spin_primitives.py or spin_decel.py
-    python benchmarks/studies/footprint_area.py fit CONFIG [OVERRIDES]  # train under the patch (band)
-    python benchmarks/studies/footprint_area.py {val,extval} band CHECKPOINT  # a model trained so, under the patch
+    python benchmarks/studies/footprint_area.py {val,extval} band CHECKPOINT  # another model under the patch
 
 ``band``: among the cloud points within 5 mm of the lowest (the shipped candidates); ``facet``: among those
 within 1 mm of the cloud's convex-hull facet under the centre of mass (``footprint_facet.py``); ``flat``: the
@@ -39,30 +39,9 @@ SHIPPED = pri.contact_geometry
 
 
 def area_geometry(points, touching=None):
-    """``contact_geometry`` with the footprint's 4 points chosen for area: the touching point farthest from
-    the vertical through the centre of mass, the one farthest from it, then the farthest on each side of
-    the line between them (a point within 1 mm of that line adds no area and no weight)."""
-    B, N, _ = points.shape
-    z = points[..., 2]
-    zmin = z.min(dim=1, keepdim=True).values
-    if touching is None:
-        touching = z <= zmin + pri.SUPPORT_DEPTH
-    xy = points[..., :2]
-    at = lambda i: torch.gather(xy, 1, i[:, None, None].expand(-1, 1, 2))[:, 0]  # noqa: E731
-    first = torch.argmax((xy ** 2).sum(-1).masked_fill(~touching, -1.0), dim=1)
-    second = torch.argmax(((xy - at(first)[:, None]) ** 2).sum(-1).masked_fill(~touching, -1.0), dim=1)
-    p1, d = at(first), at(second) - at(first)
-    side = d[:, None, 0] * (xy[..., 1] - p1[:, None, 1]) - d[:, None, 1] * (xy[..., 0] - p1[:, None, 0])
-    third = torch.argmax(side.masked_fill(~touching, -float("inf")), dim=1)
-    fourth = torch.argmin(side.masked_fill(~touching, float("inf")), dim=1)
-    length = d.norm(dim=-1)
-    s3, s4 = (torch.gather(side, 1, i[:, None])[:, 0] for i in (third, fourth))
-    fresh = torch.stack([torch.ones_like(length, dtype=torch.bool), length > 1e-9, s3 > 1e-3 * length, -s4 > 1e-3 * length], 1)
-    index = torch.stack([first, second, third, fourth], 1)
-    support = torch.gather(points, 1, index[..., None].expand(-1, -1, 3))
-    weights = fresh.to(points.dtype) / fresh.sum(dim=1, keepdim=True)
-    spin_inertia = pri.SPIN_INERTIA * (xy ** 2).sum(-1).mean(dim=1, keepdim=True)
-    return torch.cat([support.reshape(B, -1), weights, spin_inertia.clamp_min(1e-8), -zmin], dim=1)
+    """``contact_geometry`` with the footprint chosen for area (``model.contact_footprint=area``, built from
+    this study)."""
+    return SHIPPED(points, touching, footprint="area")
 
 
 def hull_face_geometry(store, shape: int, orientation_xyzw: np.ndarray, hulls: dict) -> tuple[torch.Tensor, int]:
@@ -79,7 +58,7 @@ def hull_face_geometry(store, shape: int, orientation_xyzw: np.ndarray, hulls: d
 
 
 def patch(candidates: str) -> None:
-    def geometry(points, touching=None):
+    def geometry(points, touching=None, footprint=None):  # the patch decides the footprint
         if touching is None and candidates == "flat":
             z = points[..., 2]
             flat = (z <= z.min(dim=1, keepdim=True).values + 0.001).sum(dim=1) >= 3
@@ -174,11 +153,6 @@ def main() -> None:
     which = sys.argv[1]
     if which in ("hull", "spin"):
         (hull_rollouts if which == "hull" else spin_in_place)(sys.argv[2])
-        return
-    if which == "fit":
-        from physdyn.models.training import fit, load_experiment_config
-        patch("band")
-        print(fit(load_experiment_config(sys.argv[2], sys.argv[3:])).metrics)
         return
     if which == "run":
         import runpy

@@ -184,7 +184,8 @@ class DynamicsModel(LightningModule):
         ``forward``/``step``."""
         feature = self.encoder(points / self.point_scale)
         if self.uses_shape_prior:
-            feature = self._with_spin_inertia(torch.cat([feature, contact_geometry(points)], dim=1), spin_inertia)
+            geometry = contact_geometry(points, footprint=self.config.model.contact_footprint)
+            feature = self._with_spin_inertia(torch.cat([feature, geometry], dim=1), spin_inertia)
         if self.linear_channels is not None:  # then the other network's code
             feature = torch.cat([feature, self.linear_channels.encode(points, spin_inertia)], dim=1)
         return feature

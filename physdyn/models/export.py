@@ -34,7 +34,8 @@ KEEP = ("state_dict", "hyper_parameters", "hparams_name", "pytorch-lightning_ver
         "topple_classifier", "linear_channels")
 # Settings that change what a trained network is combined with, not the network itself, and the name
 # reports give the model.
-INFERENCE_KEYS = ("model.residual_gate_linear", "model.residual_gate_angular", "model.contact_inertia", "name")
+INFERENCE_KEYS = ("model.residual_gate_linear", "model.residual_gate_angular", "model.contact_inertia",
+                  "model.contact_footprint", "name")
 
 
 def apply_settings(hyper_parameters: dict, settings: list[str]) -> dict:

@@ -46,6 +46,7 @@ RESIDUAL_CHANNELS = ("all", "linear", "angular")  # what the network's residual 
 RESIDUAL_MASKS = {"all": [1.0] * 12, "linear": [1.0] * 3 + [0.0] * 3 + [1.0] * 3 + [0.0] * 3,
                   "angular": [0.0] * 3 + [1.0] * 3 + [0.0] * 3 + [1.0] * 3}
 CONTACT_INERTIA = ("points", "body")  # where the contact prior's spin inertia comes from (model.contact_inertia)
+FOOTPRINTS = ("spread", "area")  # how the contact prior picks its footprint points (model.contact_footprint)
 
 # The contact prior's constants (see the module docstring; fitted on the quickstart store's training split).
 SUPPORT_POINTS = 4        # footprint points: Bullet's contact manifold keeps up to 4, spanning the largest area
@@ -83,22 +84,38 @@ def prior_changes(kind: str, linear_velocity: torch.Tensor, angular_velocity: to
                       dp_xy, torch.zeros_like(speed), torch.zeros_like(u), wz * tau - wz * tau * tau / (2 * t_stop)], dim=-1)
 
 
-def contact_geometry(points: torch.Tensor, touching: torch.Tensor | None = None) -> torch.Tensor:
+def contact_geometry(points: torch.Tensor, touching: torch.Tensor | None = None, footprint: str = "spread") -> torch.Tensor:
     """points (B, N, 3) world-oriented body frame (centre of mass at the origin), metres ->
     (B, 4 * K + 2): the K lowest points' offsets (K x 3), their weights (K, summing to 1), I_zz / m, and
     the height of the centre of mass above the lowest point. ``touching`` (B, N) bool: the points that may
-    carry the weight (default: within SUPPORT_DEPTH of the lowest; studies try other footprints)."""
+    carry the weight (default: within SUPPORT_DEPTH of the lowest; studies try other footprints).
+    ``footprint`` (``model.contact_footprint``): how the K points are chosen among them, "spread" or "area"
+    (see ``FOOTPRINTS``)."""
+    if footprint not in FOOTPRINTS:
+        raise ValueError(f"unknown footprint '{footprint}'; use one of {', '.join(FOOTPRINTS)}")
     B, N, _ = points.shape
-    k = min(SUPPORT_POINTS, N)
     z = points[..., 2]
     zmin = z.min(dim=1, keepdim=True).values
     if touching is None:
         touching = z <= zmin + SUPPORT_DEPTH
-    # K touching points spread over the footprint by farthest-point sampling in the plane, so a large flat
-    # face keeps its extent and its centre. It starts from the touching point farthest from the vertical
-    # through the centre of mass, so the same cloud listed in another order gets the same footprint.
     xy = points[..., :2]
-    distance = torch.where(touching, torch.full_like(z, float("inf")), torch.full_like(z, -1.0))
+    if footprint == "area" and N >= 4:  # the rule picks four points
+        index, fresh = _largest_area(xy, touching)
+    else:
+        index, fresh = _spread(xy, touching, min(SUPPORT_POINTS, N))
+    support = torch.gather(points, 1, index[..., None].expand(-1, -1, 3))
+    weights = fresh.to(points.dtype)
+    weights = weights / weights.sum(dim=1, keepdim=True)
+    spin_inertia = SPIN_INERTIA * (xy ** 2).sum(-1).mean(dim=1, keepdim=True)
+    return torch.cat([support.reshape(B, -1), weights, spin_inertia.clamp_min(1e-8), -zmin], dim=1)
+
+
+def _spread(xy: torch.Tensor, touching: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """k touching points spread over the footprint by farthest-point sampling in the plane, so a large flat
+    face keeps its extent and its centre -> (indices (B, k), whether each adds a new point (B, k)). It starts
+    from the touching point farthest from the vertical through the centre of mass, so the same cloud listed
+    in another order gets the same footprint."""
+    distance = torch.where(touching, torch.full_like(xy[..., 0], float("inf")), torch.full_like(xy[..., 0], -1.0))
     pick = torch.argmax(((xy ** 2).sum(-1)).masked_fill(~touching, -1.0), dim=1)
     chosen, fresh = [], []
     for i in range(k):
@@ -108,12 +125,29 @@ def contact_geometry(points: torch.Tensor, touching: torch.Tensor | None = None)
         here = torch.gather(xy, 1, pick[:, None, None].expand(-1, 1, 2))
         distance = torch.minimum(distance, ((xy - here) ** 2).sum(-1).masked_fill(~touching, -1.0))
         pick = torch.argmax(distance, dim=1)
-    index = torch.stack(chosen, dim=1)
-    support = torch.gather(points, 1, index[..., None].expand(-1, -1, 3))
-    weights = torch.stack(fresh, dim=1).to(points.dtype)
-    weights = weights / weights.sum(dim=1, keepdim=True)
-    spin_inertia = SPIN_INERTIA * (points[..., :2] ** 2).sum(-1).mean(dim=1, keepdim=True)
-    return torch.cat([support.reshape(B, -1), weights, spin_inertia.clamp_min(1e-8), -zmin], dim=1)
+    return torch.stack(chosen, dim=1), torch.stack(fresh, dim=1)
+
+
+def _largest_area(xy: torch.Tensor, touching: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """4 touching points spanning the largest area, greedily, as Bullet's contact manifold keeps its points:
+    the one farthest from the vertical through the centre of mass, the one farthest from it, then the
+    farthest on each side of the line between them -> (indices (B, 4), whether each adds area (B, 4)).
+    Farthest-point sampling finds two corners of a box's face and then the middles of its long edges; this
+    finds all four (docs/ablations.md, "Where the spin is lost")."""
+    at = lambda i: torch.gather(xy, 1, i[:, None, None].expand(-1, 1, 2))[:, 0]  # noqa: E731
+    first = torch.argmax((xy ** 2).sum(-1).masked_fill(~touching, -1.0), dim=1)
+    second = torch.argmax(((xy - at(first)[:, None]) ** 2).sum(-1).masked_fill(~touching, -1.0), dim=1)
+    origin, along = at(first), at(second) - at(first)
+    # twice the area of the triangle (first, second, point), signed by the side of the line it lies on
+    side = along[:, None, 0] * (xy[..., 1] - origin[:, None, 1]) - along[:, None, 1] * (xy[..., 0] - origin[:, None, 0])
+    third = torch.argmax(side.masked_fill(~touching, -float("inf")), dim=1)
+    fourth = torch.argmin(side.masked_fill(~touching, float("inf")), dim=1)
+    length = torch.linalg.vector_norm(along, dim=-1)
+    area3, area4 = (torch.gather(side, 1, i[:, None])[:, 0] for i in (third, fourth))
+    # a point within 1 mm of the line adds no area: a line contact keeps its two ends
+    fresh = torch.stack([torch.ones_like(length, dtype=torch.bool), length > 1e-9,
+                         area3 > 1e-3 * length, -area4 > 1e-3 * length], dim=1)
+    return torch.stack([first, second, third, fourth], dim=1), fresh
 
 
 def contact_changes(linear_velocity: torch.Tensor, angular_velocity: torch.Tensor, orientation: torch.Tensor,

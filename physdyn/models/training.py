@@ -23,7 +23,7 @@ from physdyn.data.datamodule import DynamicsDataModule
 from physdyn.data.normalization import NORMALIZATION_MODES, Normalization
 from physdyn.models.checkpoint_file import read_checkpoint
 from physdyn.models.losses import LOSS_KINDS
-from physdyn.models.priors import CONTACT_INERTIA, PRIORS, RESIDUAL_CHANNELS, SHAPE_PRIORS
+from physdyn.models.priors import CONTACT_INERTIA, FOOTPRINTS, PRIORS, RESIDUAL_CHANNELS, SHAPE_PRIORS
 from physdyn.data.store import StoreData
 from physdyn.errors import ConfigError, PhysdynError
 from physdyn.models.dynamics_module import DynamicsModel
@@ -51,6 +51,7 @@ def validate_experiment_config(cfg: ExperimentConfig) -> ExperimentConfig:
         registry.resolve_config(comp.name, comp.params, f"model.{section}.params", name_key=f"model.{section}.name")
     choices = (("loss.kind", cfg.loss.kind, LOSS_KINDS), ("model.prior", m.prior, PRIORS),
                ("model.contact_inertia", m.contact_inertia, CONTACT_INERTIA),
+               ("model.contact_footprint", m.contact_footprint, FOOTPRINTS),
                ("model.residual_channels", m.residual_channels, RESIDUAL_CHANNELS),
                ("data.normalization", cfg.data.normalization, NORMALIZATION_MODES))
     for key, value, allowed in choices:

@@ -40,6 +40,7 @@ LEVERS = [
     ["model.prior=planar", "model.residual_gate_linear=0.1", "model.residual_gate_angular=1.0"],
     ["model.prior=contact", "model.orientation_input=true", "data.yaw_augment=true"],
     ["model.prior=contact", "model.orientation_input=true", "model.residual_channels=linear"],
+    ["model.prior=contact", "model.orientation_input=true", "model.contact_footprint=area"],
 ]
 
 
@@ -65,7 +66,8 @@ def test_every_lever_trains_reloads_and_rolls_out_through_evaluation(quickstart_
 def test_unknown_choices_are_one_line_config_errors(tiny_store, tmp_path):
     for bad, key in (("model.prior=newton", "model.prior"), ("data.normalization=minmax", "data.normalization"),
                      ("loss.kind=l2", "loss.kind"), ("rollout.feedback=1.5", "rollout.feedback"),
-                     ("rollout.input_noise=-0.1", "rollout.input_noise"), ("data.first_window_fraction=2", "data.first_window_fraction")):
+                     ("rollout.input_noise=-0.1", "rollout.input_noise"), ("data.first_window_fraction=2", "data.first_window_fraction"),
+                     ("model.contact_footprint=corners", "model.contact_footprint")):
         with pytest.raises(ConfigError, match=key.replace(".", r"\.")) as info:
             load_experiment_config(QUICKSTART, shrunk_overrides(tiny_store, tmp_path, bad))
         assert "\n" not in str(info.value)
@@ -403,6 +405,31 @@ def test_the_footprint_can_be_given_and_defaults_to_the_lowest_points():
     support = contact_geometry(points, mine)[:, :12].reshape(2, 4, 3)
     for b in range(2):
         assert all(any(torch.allclose(s, p) for p in points[b, :3]) for s in support[b])
+
+
+def test_the_area_footprint_finds_a_rectangles_four_corners_where_spreading_misses_some():
+    box = _box_footprint(0.05, 0.03, 0.04)  # the bottom face of a 10 x 6 cm box: a grid with its corners
+    corners = {(sx * 0.05, sy * 0.03) for sx in (-1, 1) for sy in (-1, 1)}
+
+    def footprint(kind):
+        geometry = contact_geometry(box, footprint=kind)
+        xy = geometry[0, :12].reshape(4, 3)[:, :2]
+        return {(round(float(x), 4), round(float(y), 4)) for x, y in xy}, geometry
+
+    area, area_geometry = footprint("area")
+    spread, spread_geometry = footprint("spread")
+    assert area == corners and torch.allclose(area_geometry[0, 12:16], torch.full((4,), 0.25))
+    assert spread != corners  # farthest-point sampling takes a point of a long edge for a third corner
+    # the corners grip a spin harder, as the simulator's manifold of the face's corners does
+    identity, still, spin = torch.tensor([[[0.0, 0.0, 0.0, 1.0]]]), torch.zeros(1, 1, 3), torch.tensor([[[0.0, 0.0, 6.0]]])
+    spin_lost = [float(-contact_changes(still, spin, identity, g, 1 / 60, 0.25)[0, 0, 5]) for g in (area_geometry, spread_geometry)]
+    assert spin_lost[0] > 1.05 * spin_lost[1]
+    # a line contact (a cylinder lying down) keeps its two ends, the other two points weigh nothing
+    line = torch.stack([torch.linspace(-0.1, 0.1, 21), torch.zeros(21), torch.full((21,), -0.03)], dim=1)[None]
+    weights = contact_geometry(line, footprint="area")[0, 12:16]
+    assert torch.allclose(weights, torch.tensor([0.5, 0.5, 0.0, 0.0]))
+    with pytest.raises(ValueError, match="unknown footprint"):
+        contact_geometry(box, footprint="corners")
 
 
 @pytest.mark.parametrize("detach", [False, True])
