@@ -18,8 +18,10 @@ priors are pure functions of the velocities fed at step t, so teacher forcing an
   Coulomb friction spread over the object's own footprint, read from its point cloud: among the points
   within 5 mm of the lowest, 4 spread as far apart as farthest-point sampling finds (the simulator's
   contact manifold keeps up to 4 points spanning the largest area; with 4 rather than 32 points the prior
-  alone is closer on both position and rotation) carry the weight; the pressure over them is tilted so
-  that its centre lies under the centre of mass (moment balance), leaning towards the travel as friction
+  alone is closer on both position and rotation; ``model.contact_footprint=area`` takes instead the 4
+  spanning the largest area, as the manifold does, which finds a box face's corners) carry the weight; the
+  pressure over them is tilted so that its centre lies under the centre of mass (moment balance), leaning
+  towards the travel as friction
   tips the object forward (half of mu times the height of the centre of mass, a fitted factor); the spin's
   inertia is the body's own I_zz / m where the caller knows it (``model.contact_inertia=body``), else 0.8
   times the points' mean squared distance from the vertical through the centre of mass (fitted). Each
