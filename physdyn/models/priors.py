@@ -21,8 +21,8 @@ priors are pure functions of the velocities fed at step t, so teacher forcing an
   alone is closer on both position and rotation; ``model.contact_footprint=area`` takes instead the 4
   spanning the largest area, as the manifold does, which finds a box face's corners) carry the weight; the
   pressure over them is tilted so that its centre lies under the centre of mass (moment balance), leaning
-  towards the travel as friction
-  tips the object forward (half of mu times the height of the centre of mass, a fitted factor); the spin's
+  towards the travel as friction tips the object forward (half of mu times the height of the centre of
+  mass, a fitted factor); the spin's
   inertia is the body's own I_zz / m where the caller knows it (``model.contact_inertia=body``), else 0.8
   times the points' mean squared distance from the vertical through the centre of mass (fitted). Each
   point's friction opposes its own sliding velocity v + w_z x r, so a spinning object slides farther and
