@@ -34,6 +34,7 @@ sys.path.insert(0, str(HERE.parent))
 import physdyn.models.dynamics_module as dm  # noqa: E402
 import physdyn.models.priors as pri  # noqa: E402
 from footprint_facet import touching_mask  # noqa: E402
+from spin_primitives import prior_rollout  # noqa: E402
 
 SHIPPED = pri.contact_geometry
 
@@ -96,7 +97,7 @@ def hull_rollouts(path: str) -> None:
     for name, geometry in (("cloud band, farthest points (shipped)", shipped), ("mesh hull face, largest area", face),
                            ("hull face where >= 3 vertices, else shipped", mixed)):
         geometry = geometry.clone()
-        geometry[:, 16] = inertia  # the body's own I_zz / m, as the bundled model
+        geometry[:, -2] = inertia  # the body's own I_zz / m, as the bundled model
         v = torch.tensor(store.linear_velocity[start], dtype=torch.float32)[:, None]
         w = torch.tensor(store.angular_velocity[start], dtype=torch.float32)[:, None]
         turn = torch.zeros(len(sims), 1, 4)
@@ -125,16 +126,7 @@ def spin_in_place(path: str, w0: float = 10.0) -> None:
     from physdyn.predict.simulator import simulate_from_state
 
     store = load_store(path)
-
-    def spins(geometry):
-        v, w, q = torch.zeros(1, 1, 3), torch.tensor([[[0.0, 0.0, w0]]]), torch.tensor([[[0.0, 0.0, 0.0, 1.0]]])
-        out = [w0]
-        for _ in range(5):
-            with torch.no_grad():
-                c = pri.contact_changes(v, w, q, geometry, 1 / store.rate_hz, float(np.median(store.friction)))
-            v, w = v + c[..., :3], w + c[..., 3:6]
-            out.append(w[0, 0, 2].item())
-        return np.round(out, 2)
+    spins = lambda g: np.round(prior_rollout(g, 0.0, w0, store.rate_hz, float(np.median(store.friction)))[0], 2)  # noqa: E731
 
     for shape in range(0, store.num_shapes, 6):
         sim = int(np.flatnonzero(store.shape_id == shape)[0])
@@ -144,7 +136,7 @@ def spin_in_place(path: str, w0: float = 10.0) -> None:
         cloud = SHIPPED(torch.tensor(world_oriented_points(store.points[shape][:256], q0)[None], dtype=torch.float32))
         face, vertices = hull_face_geometry(store, shape, q0, {})
         for g in (cloud, face):
-            g[0, 16] = float(store_spin_inertia(store, np.array([sim]), q0[None])[0])
+            g[0, -2] = float(store_spin_inertia(store, np.array([sim]), q0[None])[0])
         print(f"shape {shape:3d}: w_z PyBullet {np.round(simulated, 2)}; prior, cloud band {spins(cloud)}; "
               f"prior, hull face of {vertices} vertices {spins(face)}", flush=True)
 

@@ -27,12 +27,13 @@ from physdyn.predict.simulator import simulate_from_state
 RATE, STEPS, MU = 15.0, 5, 0.25
 
 
-def prior_rollout(geometry, v0, w0):
+def prior_rollout(geometry, v0, w0, rate=RATE, friction=MU):
+    """The contact prior alone from a slide v0 along x and a spin w0: (w_z, horizontal speed) over STEPS steps."""
     v = torch.tensor([[[v0, 0.0, 0.0]]]); w = torch.tensor([[[0.0, 0.0, w0]]]); q = torch.tensor([[[0.0, 0.0, 0.0, 1.0]]])
     spins, speeds = [w0], [abs(v0)]
     for _ in range(STEPS):
         with torch.no_grad():
-            c = contact_changes(v, w, q, geometry, 1 / RATE, MU)
+            c = contact_changes(v, w, q, geometry, 1 / rate, friction)
         v, w = v + c[..., 0:3], w + c[..., 3:6]
         q = quat_multiply(rotvec_to_quat(c[..., 9:12]), q)
         spins.append(w[0, 0, 2].item()); speeds.append(v[0, 0, :2].norm().item())
