@@ -12,7 +12,7 @@
    a push over one physics step, 1/960 s, mu = 0.25, recorded at 15 Hz until at rest or 7 s).
 3. Prediction through the public API, as a user would call it: ``Predictor.predict(prepare_body(mesh_file), lin_vel=v0,
    ang_vel=w0, orientation_xyzw=q0, seconds=...)`` with the simulated state right after the push.
-4. Scores, over pushes: final displacement error (the prediction starts where the object rests; the store
+4. Scores, over pushes (``--cloud-sim``: also PyBullet on each shape's cloud hull with its mass properties): final displacement error (the prediction starts where the object rests; the store
    one physics step after the push, so displacements from step 0 are compared) for the model, Coulomb
    sliding along v0 told mu, and staying put; final rotation error for the model and "no rotation"; topple
    accuracy against always answering the majority class.
@@ -34,11 +34,14 @@ import trimesh
 from physdyn.config import DataConfig, load_config
 from physdyn.data.simulated_store import generate_dataset
 from physdyn.data.store import load_store
+from physdyn.data.windows import store_world_inertia
 from physdyn.errors import PhysdynError, PredictionWarning
 from physdyn.eval.baselines import coulomb_slide
 from physdyn.eval.metrics import rotation_angle_deg
 from physdyn.predict.body import prepare_body
 from physdyn.predict.predictor import load_predictor
+from physdyn.sim.cloud_body import CloudSimulator
+from physdyn.sim.trajectory import topple_labels
 
 NAMED = {  # file under pybullet_data -> the URDF scale it is used at
     "bunny.obj": 1.0, "duck_vhacd.obj": 1.0, "teddy2_VHACD_CHs.obj": 1.0, "objects/mug.obj": 1.0,
@@ -93,6 +96,9 @@ def main() -> None:
     parser.add_argument("--random-from", type=int, default=0,
                         help="first random_urdfs object to take (30 with --no-named: a validation set apart from the default's)")
     parser.add_argument("--no-named", action="store_true", help="leave out the named objects")
+    parser.add_argument("--cloud-sim", action="store_true",
+                        help="also score PyBullet on each shape's cloud hull with its mass properties (the cloud_sim "
+                             "baseline of `physdyn test --cloud-sim`)")
     args = parser.parse_args()
     work = Path(args.work)
     which = f"external_{args.random}x{args.pushes}" + (f"_from{args.random_from}" if args.random_from else "") + ("_unnamed" if args.no_named else "")
@@ -111,6 +117,7 @@ def main() -> None:
     if abs(rate - store.rate_hz) > 1e-9:
         raise SystemExit(f"the model predicts at {rate} Hz, the external store is recorded at {store.rate_hz} Hz")
     rows, bodies = [], {}
+    simulator = CloudSimulator() if args.cloud_sim else None
     t0 = time.perf_counter()
     for i in range(store.num_sims):
         f = store.frames(i)
@@ -138,7 +145,17 @@ def main() -> None:
             "toppled": bool(store.toppled[i]),
             "predicted_topple": bool(pred["toppled"]),
         })
+        if simulator is not None:
+            inertia = store_world_inertia(store, np.array([i]), np.array([[0.0, 0.0, 0.0, 1.0]]))
+            sim = simulator.trajectories(store.points[store.shape_id[i]][None], q[:1], p[:1], v0[None], w0[None],
+                                         store.friction[i:i + 1], T - 1, rate, inertia)
+            sp, sq = sim["com_position"][0], sim["orientation_xyzw"][0]
+            rows[-1].update({"cloud_sim_m": float(np.linalg.norm((sp[-1] - sp[0]) - true_disp)),
+                             "cloud_sim_deg": float(rotation_angle_deg(sq[-1], q[-1])),
+                             "cloud_sim_topple": bool(topple_labels(sq)[1] >= 0)})
     seconds = time.perf_counter() - t0
+    if simulator is not None:
+        simulator.close()
     toppled = np.array([r["toppled"] for r in rows])
     correct = np.mean([r["toppled"] == r["predicted_topple"] for r in rows])
     nt = [r for r in rows if not r["toppled"]]
@@ -159,6 +176,13 @@ def main() -> None:
     fr = figures["final_rotation_deg"]
     print(f"  final rotation, median of non-toppling: model {fr['model']:.1f} deg, no rotation {fr['no_rotation']:.1f} deg")
     print(f"  topple accuracy {figures['topple_accuracy']:.3f} (majority answer {figures['majority_accuracy']:.3f})")
+    if simulator is not None:
+        sim_correct = np.mean([r["toppled"] == r["cloud_sim_topple"] for r in rows])
+        figures["cloud_sim"] = {"final_position_cm": 100 * med("cloud_sim_m"), "final_rotation_deg": med("cloud_sim_deg"),
+                                "topple_accuracy": float(sim_correct)}
+        print(f"  PyBullet on the cloud's hull (cloud_sim): final position {100 * med('cloud_sim_m'):.2f} cm "
+              f"({med('cloud_sim_m') / med('slide_m'):.2f} x sliding), final rotation {med('cloud_sim_deg'):.1f} deg, "
+              f"topple accuracy {sim_correct:.3f}")
     if args.json:
         Path(args.json).write_text(json.dumps({"figures": figures, "pushes": rows}, indent=1))
 

@@ -30,6 +30,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--data", help="store to fit on (default: the store the model was trained on)")
     p.add_argument("--out", required=True, help="the checkpoint to write (.ckpt; may be --checkpoint with --overwrite)")
     p.add_argument("--num-points", type=int, help="cloud size the classifier reads (default: all the store's points)")
+    p.add_argument("--physics", action="store_true",
+                   help="also read a 1 s PyBullet roll-out of the cloud's hull per push (more accurate; a few ms "
+                        "per prediction; docs/model-card.md, Toppling)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out")
     p.set_defaults(func=run, parser=p)
 
@@ -56,7 +59,10 @@ def run(args: argparse.Namespace) -> int:
     if abs(float(model.data_info.get("rate_hz", store.rate_hz)) - store.rate_hz) > 1e-6:
         raise PhysdynError(f"the model was trained at {model.data_info['rate_hz']:g} Hz and {data} is recorded at "
                            f"{store.rate_hz:g} Hz; fit on a store of the model's rate")
-    classifier, report = fit_topple_classifier(store, args.num_points, friction=model.prior_friction)
+    if args.physics:
+        print(f"simulating the hull of each push's cloud for 1 s ({int((store.split <= 1).sum())} pushes, a few ms each)")
+    classifier, report = fit_topple_classifier(store, args.num_points, friction=model.prior_friction,
+                                               physics=args.physics)
     raw = read_checkpoint(args.checkpoint)
     raw["topple_classifier"] = classifier.to_dict()
     out.parent.mkdir(parents=True, exist_ok=True)

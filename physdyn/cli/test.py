@@ -36,6 +36,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--categories", nargs="+", metavar="NAME", help="evaluate only these categories")
     p.add_argument("--baseline-checkpoint", action="append", default=[], metavar="CKPT",
                    help="another model checkpoint to compare with, e.g. the MLP baseline (repeatable)")
+    p.add_argument("--cloud-sim", action="store_true",
+                   help="also compare with PyBullet run on the convex hull of each shape's point cloud, with the "
+                        "body's mass properties (the cloud_sim baseline: 'just running the simulator' on what the "
+                        "model sees; about 10 ms of CPU per push, plus its one-step errors)")
     p.add_argument("--overwrite", action="store_true", help="replace a report already in --out")
     p.set_defaults(func=run, parser=p)
 
@@ -49,7 +53,8 @@ def run(args: argparse.Namespace) -> int:
         raise PhysdynError(f"--warm-start must be >= 0, got {args.warm_start}")
     check_report_target(args.out, args.overwrite)
     model, data = checkpoint_and_store(args.checkpoint, args.data)
-    baselines = ["stay_put", "coulomb_slide", *(load_checkpoint(c) for c in args.baseline_checkpoint)]
+    baselines = ["stay_put", "coulomb_slide", *(["cloud_sim"] if args.cloud_sim else []),
+                 *(load_checkpoint(c) for c in args.baseline_checkpoint)]
     result = compare(model, data, baselines, split=args.split, warm_start=args.warm_start, categories=args.categories,
                      keep_trajectories=not args.no_viewer, progress=lambda line: print(f"test: {line}", file=sys.stderr, flush=True))
     kept = result["results"][result["model"]].pop("trajectories", None)

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from physdyn.data.store import StoreData
-from physdyn.geometry.mass import vertical_inertia
+from physdyn.geometry.mass import vertical_inertia, world_inertia_per_mass
 from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_matrix, rotvec_to_quat, world_delta_rotvec
 
 # The per-step changes a model predicts, in the order of its 12 outputs [dv, dw, dp, dtheta].
@@ -83,6 +83,13 @@ def store_spin_inertia(store: StoreData, sims: np.ndarray, orientation_xyzw: np.
     shapes = store.shape_id[np.asarray(sims, dtype=np.int64)]
     axes = quat_to_matrix(store.inertia_orientation_xyzw[shapes])
     return vertical_inertia(store.inertia_diag[shapes], axes, store.mass[shapes], orientation_xyzw)
+
+
+def store_world_inertia(store: StoreData, sims: np.ndarray, orientation_xyzw: np.ndarray) -> np.ndarray:
+    """(B, 3, 3) I / m of each sim's shape in world axes at the given (B, 4) orientations."""
+    shapes = store.shape_id[np.asarray(sims, dtype=np.int64)]
+    axes = quat_to_matrix(store.inertia_orientation_xyzw[shapes])
+    return world_inertia_per_mass(store.inertia_diag[shapes], axes, store.mass[shapes], orientation_xyzw)
 
 
 def turned_about_vertical(batch: dict[str, np.ndarray], yaw: np.ndarray) -> dict[str, np.ndarray]:

@@ -5,6 +5,11 @@
   (mu: the store's effective Coulomb coefficient, ``sims/friction``) until it stops; no rotation. This is
   exact for a box pushed through its centre of mass, and the bar a learned model must clear.
 Both predict that nothing topples (probability 0 at every step). Neither uses a warm start.
+- ``cloud_sim``: "just running the simulator" on what a model sees: PyBullet (1/240 s) on the convex hull of
+  the shape's point cloud, with the body's own mass properties (the store's), from the step-0 state
+  (``physdyn.sim.cloud_body``). Its topple probability is 1 from the step its roll-out passes 45 degrees.
+  Teacher-forced one-step errors start each step at rest in the true orientation with the true velocities
+  (a rocking or airborne state is put on the ground). About 10 ms of CPU per push.
 
 ``resolve_predictor`` accepts a baseline's name, a ``Baseline``, a ``DynamicsModel`` or the path of any
 ``DynamicsModel`` checkpoint (e.g. the MLP baseline of ``configs/experiment/mlp_baseline.yaml``).
@@ -19,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from physdyn.errors import CheckpointError, PhysdynError
+from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_rotvec
 from physdyn.eval.rollout import RolloutResult
 
 GRAVITY = 9.81
@@ -92,6 +98,7 @@ class Baseline(ABC):
 
     name = "baseline"
     predicts_topple = True  # its zero probabilities are a prediction: "never topples"
+    uses_shapes = False  # whether ``rollout`` needs ``points_body`` and ``inertia_per_mass`` (cloud_sim)
 
     @abstractmethod
     def rollout(self, com_position0, orientation0_xyzw, lin_vel0, ang_vel0, steps: int, friction, rate_hz: float) -> RolloutResult:
@@ -115,7 +122,37 @@ class CoulombSlide(Baseline):
         return coulomb_slide(com_position0, orientation0_xyzw, lin_vel0, ang_vel0, steps, friction, rate_hz, self.gravity)
 
 
-BASELINES: dict[str, type[Baseline]] = {"stay_put": StayPut, "coulomb_slide": CoulombSlide}
+class CloudSim(Baseline):
+    name = "cloud_sim"
+    uses_shapes = True
+
+    def __init__(self, time_step: float | None = None):
+        self.time_step = time_step  # None: physdyn.sim.cloud_body.CLOUD_TIME_STEP (1/240 s)
+
+    def rollout(self, com_position0, orientation0_xyzw, lin_vel0, ang_vel0, steps, friction, rate_hz,
+                points_body=None, inertia_per_mass=None):
+        """As ``Baseline.rollout``, with points_body (B, N, 3) each shape's cloud in the body frame and
+        inertia_per_mass (B, 3, 3) its I / m in body axes (None: the hull's)."""
+        from physdyn.sim.cloud_body import CloudSimulator  # PyBullet: only when this baseline runs
+        from physdyn.sim.trajectory import topple_labels
+
+        if points_body is None:
+            raise PhysdynError("the cloud_sim baseline needs each sequence's point cloud (points_body)")
+        friction = np.broadcast_to(np.asarray(friction, np.float64), (len(np.asarray(com_position0).reshape(-1, 3)),))
+        if np.isnan(friction).any():
+            raise PhysdynError("the cloud_sim baseline needs the friction coefficient; the store records none "
+                               "(sims/friction is NaN)")
+        with CloudSimulator(**({} if self.time_step is None else {"time_step": self.time_step})) as sim:
+            out = sim.trajectories(points_body, orientation0_xyzw, com_position0, lin_vel0, ang_vel0, friction,
+                                   steps, rate_hz, inertia_per_mass)
+        q = out["orientation_xyzw"]
+        result = _result(out["com_position"], q, out["linear_velocity"], out["angular_velocity"])
+        result.delta_rotation = quat_to_rotvec(quat_multiply(q[:, 1:], quat_conjugate(q[:, :-1])))
+        result.topple_probability = np.stack([topple_labels(q)[0] for q in out["orientation_xyzw"]]).astype(np.float64)
+        return result
+
+
+BASELINES: dict[str, type[Baseline]] = {"stay_put": StayPut, "coulomb_slide": CoulombSlide, "cloud_sim": CloudSim}
 
 
 def load_checkpoint(path: str | Path):

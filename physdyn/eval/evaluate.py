@@ -15,7 +15,7 @@ import numpy as np
 
 from physdyn.data import SPLITS
 from physdyn.data.store import StoreData, load_store
-from physdyn.data.windows import frame_targets, store_spin_inertia, subsample_indices
+from physdyn.data.windows import frame_targets, store_spin_inertia, store_world_inertia, subsample_indices
 from physdyn.errors import PhysdynError
 from physdyn.eval import metrics as M
 from physdyn.eval.baselines import Baseline, predictor_name, resolve_predictor
@@ -100,6 +100,16 @@ def _model_points(store: StoreData, sims: np.ndarray, num_points: int | None, rn
     return points if index is None else np.take_along_axis(points, index[..., None], axis=1)
 
 
+def _shapes(baseline: Baseline, store: StoreData, sims: np.ndarray) -> dict[str, np.ndarray]:
+    """What a baseline that simulates the shape (``uses_shapes``) needs: every point of each sim's cloud
+    (body frame) and its body's I / m in body axes; nothing for the others."""
+    if not getattr(baseline, "uses_shapes", False):
+        return {}
+    shapes = store.shape_id[np.asarray(sims, dtype=np.int64)]
+    return {"points_body": store.points[shapes],
+            "inertia_per_mass": store_world_inertia(store, sims, np.tile([0.0, 0.0, 0.0, 1.0], (len(shapes), 1)))}
+
+
 def predict_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, truth: dict[str, np.ndarray], warm_start: int = 0,
                      batch_size: int = 256, seed: int = 0) -> RolloutResult:
     """Roll ``predictor`` out over ``sims`` for the horizon of ``truth`` (from ``gather_truth``)."""
@@ -110,7 +120,8 @@ def predict_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, truth: 
         p0, q0 = truth["com_position"][sl, 0], truth["orientation_xyzw"][sl, 0]
         v0, w0 = truth["linear_velocity"][sl, 0], truth["angular_velocity"][sl, 0]
         if isinstance(predictor, Baseline):
-            parts.append(predictor.rollout(p0, q0, v0, w0, steps, truth["friction"][sl], store.rate_hz))
+            parts.append(predictor.rollout(p0, q0, v0, w0, steps, truth["friction"][sl], store.rate_hz,
+                                           **_shapes(predictor, store, sims[sl])))
             continue
         k = min(int(warm_start), steps)
         warm = (truth["linear_velocity"][sl, 1:k + 1], truth["angular_velocity"][sl, 1:k + 1]) if k else None
@@ -120,7 +131,8 @@ def predict_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, truth: 
         if classifier is not None:  # its own cloud size, drawn from a stream of its own: the model's draws stay as they were
             topple_points = _model_points(store, sims[sl], classifier.num_points, np.random.default_rng([seed, sl.start]))
         parts.append(rollout(predictor, points, q0, p0, v0, w0, steps, warm, topple_points_body=topple_points,
-                             spin_inertia=store_spin_inertia(store, sims[sl], q0)))
+                             spin_inertia=store_spin_inertia(store, sims[sl], q0),
+                             body_inertia=store_world_inertia(store, sims[sl], q0) if classifier is not None else None))
     return _concat(parts)
 
 
@@ -131,7 +143,8 @@ def predict_single_steps(predictor: Any, store: StoreData, sims: np.ndarray, tru
     if isinstance(predictor, Baseline):
         flat = lambda key, d: truth[key][:, :S].reshape(-1, d)  # noqa: E731  every true state is a start
         one = predictor.rollout(flat("com_position", 3), flat("orientation_xyzw", 4), flat("linear_velocity", 3),
-                                flat("angular_velocity", 3), 1, np.repeat(truth["friction"], S), store.rate_hz)
+                                flat("angular_velocity", 3), 1, np.repeat(truth["friction"], S), store.rate_hz,
+                                **_shapes(predictor, store, np.repeat(sims, S)))
         return {k: getattr(one, k)[:, 0].reshape(B, S, 3) for k in DELTA_KEYS}
     rng = np.random.default_rng(seed)
     parts = []
@@ -302,10 +315,10 @@ def compare(model: Any, store: StoreData | str, baselines: Sequence[Any] = ("sta
     skipped: dict[str, str] = {}
     for number, spec in enumerate(baselines, start=2):
         say(f"evaluating {spec if isinstance(spec, str) else predictor_name(spec, 'a baseline')} ({number} of {total})")
-        if spec == "coulomb_slide" and np.isnan(store.friction).any():
+        if spec in ("coulomb_slide", "cloud_sim") and np.isnan(store.friction).any():
             # Imported real trials may not know their friction: a NaN baseline would read as "no data".
-            skipped["coulomb_slide"] = ("the store records no friction coefficient (sims/friction is NaN); "
-                                        "import with --friction MU to compare with Coulomb sliding")
+            skipped[spec] = ("the store records no friction coefficient (sims/friction is NaN); "
+                             f"import with --friction MU to compare with {spec}")
             continue
         r = evaluate(spec, store, split, warm_start, categories, **kwargs)
         name = r["predictor"]

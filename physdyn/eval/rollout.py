@@ -129,6 +129,7 @@ def rollout(
     stepwise: bool = False,
     topple_points_body: np.ndarray | None = None,
     spin_inertia: np.ndarray | None = None,
+    body_inertia: np.ndarray | None = None,
 ) -> RolloutResult:
     """Roll a predictor out for ``steps`` transitions from the state at step 0, B sequences at once.
 
@@ -145,6 +146,9 @@ def rollout(
     instead of the head's, from ``topple_points_body`` (B, N', 3) (default: ``points_body``).
     spin_inertia: optional (B,) I_zz / m of each body about the world vertical at step 0, for models whose
     contact prior takes the body's (``model.contact_inertia=body``; ``physdyn.geometry.mass.vertical_inertia``).
+    body_inertia: optional (B, 3, 3) I / m of each body in world axes at step 0, for a topple classifier
+    that simulates the cloud's hull (``fit-topple --physics``; ``physdyn.geometry.mass.world_inertia_per_mass``);
+    without it that roll-out takes the hull's inertia.
     """
     if steps < 0:
         raise ValueError(f"steps must be >= 0, got {steps}")
@@ -179,7 +183,8 @@ def rollout(
     classifier = getattr(model, "topple_classifier", None)
     if classifier is not None:
         cloud = points if topple_points_body is None else _oriented(_numpy(topple_points_body), q0)
-        probability = classifier.predict(cloud, _numpy(lin_vel0).reshape(B, 3), _numpy(ang_vel0).reshape(B, 3), steps)
+        probability = classifier.predict(cloud, _numpy(lin_vel0).reshape(B, 3), _numpy(ang_vel0).reshape(B, 3), steps,
+                                         None if body_inertia is None else _numpy(body_inertia).reshape(B, 3, 3))
     return RolloutResult(**states, topple_probability=probability, **deltas, fed_linear_velocity=fed_v,
                          fed_angular_velocity=fed_w)
 

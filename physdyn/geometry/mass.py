@@ -114,6 +114,14 @@ def solid_mass_properties(mesh: trimesh.Trimesh, watertight: bool, density: floa
     return props
 
 
+def world_inertia_per_mass(inertia_diag: np.ndarray, principal_axes: np.ndarray, mass: np.ndarray,
+                           orientation_xyzw: np.ndarray) -> np.ndarray:
+    """The inertia tensor per unit mass (..., 3, 3) m^2 about the centre of mass, in world axes, of a body
+    whose mesh frame has world orientation ``orientation_xyzw`` (arguments as for ``vertical_inertia``)."""
+    R = quat_to_matrix(orientation_xyzw) @ np.asarray(principal_axes)
+    return np.einsum("...ij,...j,...kj->...ik", R, np.asarray(inertia_diag), R) / np.asarray(mass)[..., None, None]
+
+
 def vertical_inertia(inertia_diag: np.ndarray, principal_axes: np.ndarray, mass: np.ndarray,
                      orientation_xyzw: np.ndarray) -> np.ndarray:
     """I_zz / m about the world vertical through the centre of mass, for a body whose mesh frame has world

@@ -25,7 +25,7 @@ from physdyn.errors import PhysdynError, PredictionError, PredictionWarning
 from physdyn.eval.baselines import load_checkpoint
 from physdyn.eval.metrics import TOPPLE_THRESHOLD
 from physdyn.eval.rollout import rollout
-from physdyn.geometry.mass import vertical_inertia
+from physdyn.geometry.mass import vertical_inertia, world_inertia_per_mass
 from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_rotvec
 from physdyn.predict.body import PreparedBody, initial_pose, prepare_body
 from physdyn.predict.simulator import SIMULATOR_NAME, simulate_from_state
@@ -193,15 +193,17 @@ class Predictor:
             q0 = np.stack([check_orientation(q) for q in _per_request(orientation_xyzw, R, "orientation (x, y, z, w)", 4)])
         bodies = self._bodies(meshes, scales)
         # Per distinct body and orientation (a batch often pushes a few objects many times): the resting
-        # pose and the mesh's own spin inertia, for a contact prior that takes it (model.contact_inertia=body).
-        posed: dict[tuple[int, bytes], tuple[np.ndarray, float]] = {}
+        # pose, the mesh's own spin inertia, for a contact prior that takes it (model.contact_inertia=body),
+        # and its inertia tensor, for a topple classifier that simulates (fit-topple --physics).
+        posed: dict[tuple[int, bytes], tuple[np.ndarray, float, np.ndarray]] = {}
         for body, q in zip(bodies, q0):
             key = (id(body), q.tobytes())
             if key not in posed:
-                posed[key] = (initial_pose(body.spec, q),
-                              float(vertical_inertia(body.spec.inertia_diag, body.spec.principal_axes, body.spec.mass, q)))
+                mass = (body.spec.inertia_diag, body.spec.principal_axes, body.spec.mass, q)
+                posed[key] = (initial_pose(body.spec, q), float(vertical_inertia(*mass)), world_inertia_per_mass(*mass))
         p0 = np.stack([posed[id(body), q.tobytes()][0] for body, q in zip(bodies, q0)])
         spin_inertia = np.array([posed[id(body), q.tobytes()][1] for body, q in zip(bodies, q0)])
+        body_inertia = np.stack([posed[id(body), q.tobytes()][2] for body, q in zip(bodies, q0)])
         points = np.stack([body.points_body(self.num_points) for body in bodies])
         classifier = getattr(self.model, "topple_classifier", None)
         topple_points = None if classifier is None else np.stack(
@@ -213,7 +215,7 @@ class Predictor:
                 idx = same[lo : lo + int(chunk_size)]
                 rolled = rollout(self.model, points[idx], q0[idx], p0[idx], v0[idx], w0[idx], T - 1,
                                  topple_points_body=None if topple_points is None else topple_points[idx],
-                                 spin_inertia=spin_inertia[idx])
+                                 spin_inertia=spin_inertia[idx], body_inertia=body_inertia[idx])
                 for b, r in enumerate(idx):
                     out = rolled.sequence(b)
                     probability = out["topple_probability"]

@@ -35,10 +35,14 @@ class PhysicsWorld:
             physicsClientId=self.client,
         )
 
-    def add_body(self, spec: RigidBodySpec) -> int:
-        shape = pb.createCollisionShape(
-            pb.GEOM_MESH, vertices=spec.hull_vertices.tolist(), physicsClientId=self.client
-        )
+    def collision_shape(self, spec: RigidBodySpec) -> int:
+        """The body's convex hull as a collision shape of this world (reusable by ``add_body``)."""
+        return pb.createCollisionShape(pb.GEOM_MESH, vertices=spec.hull_vertices.tolist(), physicsClientId=self.client)
+
+    def add_body(self, spec: RigidBodySpec, shape: int | None = None) -> int:
+        """A body of ``spec`` (mass properties set explicitly); ``shape``: its ``collision_shape`` made before."""
+        if shape is None:
+            shape = self.collision_shape(spec)
         body = pb.createMultiBody(
             baseMass=spec.mass,
             baseCollisionShapeIndex=shape,

@@ -6,6 +6,7 @@ import trimesh
 
 from physdyn.config import PhysicsConfig
 from physdyn.data.store import load_store
+from physdyn.errors import PhysdynError
 from physdyn.eval.baselines import CoulombSlide, StayPut, coulomb_slide, resolve_predictor, stay_put
 from physdyn.eval.evaluate import evaluate, gather_truth, predict_single_steps, select_sequences
 from physdyn.geometry.mass import exact_mass_properties
@@ -97,3 +98,33 @@ def test_baselines_evaluate_on_a_real_store(tiny_store):
     assert slide["headline"]["final_position_m_median"] < still["headline"]["final_position_m_median"]
     assert still["rollout"]["all"]["relative"]["position"] == pytest.approx(1.0)  # zero prediction: 100 %
     assert isinstance(resolve_predictor("stay_put"), StayPut)
+
+
+def test_the_simulator_on_the_cloud_is_scored_as_a_baseline(tiny_store):
+    # cloud_sim: PyBullet on each shape's cloud hull with the store's mass properties. The tiny store's
+    # own simulations used the mesh's hull at 1/960 s, so it is close to them but not equal.
+    from physdyn.eval.baselines import CloudSim
+    from physdyn.eval.rollout import integrate
+
+    store = load_store(tiny_store)
+    sim, slide = evaluate(CloudSim(), store), evaluate("coulomb_slide", store)
+    assert sim["predictor"] == "cloud_sim" and isinstance(resolve_predictor("cloud_sim"), CloudSim)
+    assert sim["headline"]["final_position_m_median"] < 0.5 * slide["headline"]["final_position_m_median"]
+    assert sim["headline"]["final_rotation_deg_median"] < 0.5 * slide["headline"]["final_rotation_deg_median"]
+    toppled = store.toppled[select_sequences(store, "test")].astype(bool)
+    assert toppled.any() and sim["topple"]["accuracy"] > max(toppled.mean(), 1 - toppled.mean())
+    # its per-step changes are those of its own states: integrating them gives its trajectory back
+    sims = select_sequences(store, "test")[:4]
+    truth = gather_truth(store, sims)
+    shapes = store.shape_id[sims]
+    out = CloudSim().rollout(truth["com_position"][:, 0], truth["orientation_xyzw"][:, 0], truth["linear_velocity"][:, 0],
+                             truth["angular_velocity"][:, 0], 12, truth["friction"], store.rate_hz,
+                             points_body=store.points[shapes])
+    again = integrate(truth["com_position"][:, 0], truth["orientation_xyzw"][:, 0], truth["linear_velocity"][:, 0],
+                      truth["angular_velocity"][:, 0], out.deltas())
+    np.testing.assert_allclose(again["com_position"], out.com_position, atol=1e-9)
+    dots = np.abs((again["orientation_xyzw"] * out.orientation_xyzw).sum(-1))
+    np.testing.assert_allclose(dots, 1.0, atol=1e-6)
+    with pytest.raises(PhysdynError, match="point cloud"):
+        CloudSim().rollout(truth["com_position"][:, 0], truth["orientation_xyzw"][:, 0], truth["linear_velocity"][:, 0],
+                           truth["angular_velocity"][:, 0], 3, truth["friction"], store.rate_hz)

@@ -43,9 +43,10 @@ def test_unknown_friction_skips_the_coulomb_baseline_and_says_why(tiny_store):
 
     store = load_store(tiny_store)
     store.friction[:] = np.nan  # as an import of real trials without --friction
-    comparison = compare("stay_put", store)
-    assert "coulomb_slide" not in comparison["results"]
+    comparison = compare("stay_put", store, baselines=("coulomb_slide", "cloud_sim"))
+    assert "coulomb_slide" not in comparison["results"] and "cloud_sim" not in comparison["results"]
     assert "--friction" in comparison["verdict"] and "friction" in comparison["skipped_baselines"]["coulomb_slide"]
+    assert "friction" in comparison["skipped_baselines"]["cloud_sim"]
 
 
 def test_error_curves_stop_where_few_sequences_still_run(tiny_store):

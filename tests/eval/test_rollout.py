@@ -256,3 +256,33 @@ def test_fit_topple_puts_a_classifier_in_the_checkpoint_and_roll_outs_use_it(tin
     # probabilities the roll-out runs the network on the moving sequences only, smaller matrix products)
     np.testing.assert_allclose(kept["predicted"].com_position, evaluate(plain, store, "test", keep_trajectories=True)["trajectories"]["predicted"].com_position,
                                rtol=1e-5, atol=1e-7)
+
+
+def test_fit_topple_physics_and_roll_outs_simulate_with_the_bodies_inertia(tiny_checkpoint, tiny_store, store, tmp_path, capsys):
+    from physdyn.cli import main
+    from physdyn.models.topple_classifier import store_features
+
+    out = tmp_path / "topple_physics.ckpt"
+    assert main(["fit-topple", "--checkpoint", tiny_checkpoint, "--data", tiny_store, "--physics", "--out", str(out)]) == 0
+    assert "simulating the hull" in capsys.readouterr().out
+    clf = load_checkpoint(out).topple_classifier
+    assert clf.physics
+    sims = select_sequences(store, "test")
+    kept = evaluate(load_checkpoint(out), store, "test", keep_trajectories=True)["trajectories"]
+    # evaluate hands the classifier each body's own inertia (the store's), as fit-topple did
+    p = clf.probability(store_features(store, sims, None, clf.friction, physics=True))
+    np.testing.assert_allclose(kept["predicted"].topple_probability, clf.per_step(p, kept["truth"]["valid"].shape[1]), atol=1e-12)
+
+
+def test_physdyn_test_with_cloud_sim_reports_the_simulator_on_the_cloud(tiny_checkpoint, tiny_store, tmp_path, capsys):
+    import json
+
+    from physdyn.cli import main
+
+    assert main(["test", "--checkpoint", tiny_checkpoint, "--data", tiny_store, "--out", str(tmp_path / "rep"),
+                 "--cloud-sim", "--no-viewer"]) == 0
+    assert "evaluating cloud_sim" in capsys.readouterr().err
+    metrics = json.loads((tmp_path / "rep" / "metrics.json").read_text())
+    sim, slide = metrics["results"]["cloud_sim"]["headline"], metrics["results"]["coulomb_slide"]["headline"]
+    assert sim["final_position_m_median"] < slide["final_position_m_median"]
+    assert any(line.startswith("| cloud_sim |") for line in (tmp_path / "rep" / "report.md").read_text().splitlines())

@@ -98,3 +98,29 @@ def test_fitted_on_a_store_it_beats_always_no_and_says_when(tiny_store):
     np.testing.assert_allclose(back.per_step(np.array([0.5]), 5), clf.per_step(np.array([0.5]), 5))
     with pytest.raises(ValueError, match="other features"):
         ToppleClassifier.from_dict({**clf.to_dict(), "features": ["speed"]})
+
+
+def test_with_physics_it_also_reads_a_short_simulation_of_the_hull(tiny_store):
+    from physdyn.data.windows import store_world_inertia, world_oriented_points
+    from physdyn.models.topple_classifier import PHYSICS_FEATURE_NAMES, physics_features
+
+    store = load_store(tiny_store)
+    clf, report = fit_topple_classifier(store, physics=True)
+    assert clf.physics and clf.feature_names == FEATURE_NAMES + PHYSICS_FEATURE_NAMES
+    train = np.flatnonzero(store.split == 0)
+    truth = store.toppled[train].astype(bool)
+    x = store_features(store, train, None, 0.25, physics=True)
+    assert x.shape == (len(train), len(FEATURE_NAMES) + len(PHYSICS_FEATURE_NAMES))
+    # the roll-out's verdict alone (tilted past 45 degrees within 1 s) already beats always "no"
+    sim_says = x[:, -1] > 0.5
+    assert np.mean(sim_says == truth) > max(truth.mean(), 1 - truth.mean()) + 0.05
+    assert np.mean((clf.probability(x) >= 0.5) == truth) == pytest.approx(report["train_accuracy"])
+    # the physics columns are the body's roll-outs with its own inertia, the store's
+    first = store.start[train[:6]]
+    world = world_oriented_points(store.points[store.shape_id[train[:6]]], store.orientation_xyzw[first])
+    own = physics_features(world, store.linear_velocity[first], store.angular_velocity[first], 0.25,
+                           store_world_inertia(store, train[:6], store.orientation_xyzw[first]))
+    np.testing.assert_allclose(x[:6, len(FEATURE_NAMES):], own, atol=1e-9)
+    back = ToppleClassifier.from_dict(clf.to_dict())
+    assert back.physics and not ToppleClassifier.from_dict({**clf.to_dict(), "features": list(FEATURE_NAMES),
+                                                            "weights": clf.weights[:len(FEATURE_NAMES)]}).physics
