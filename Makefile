@@ -27,7 +27,7 @@ quickstart: install
 	physdyn data info data/quickstart.zarr
 	@if [ -f runs/quickstart/finished.json ]; then echo "runs/quickstart is trained; kept"; \
 	else physdyn fit --config configs/experiment/quickstart.yaml $$([ -f runs/quickstart/last.ckpt ] && echo --resume); fi
-	physdyn fit-topple --checkpoint runs/quickstart/best.ckpt --out runs/quickstart/best_topple.ckpt --overwrite
+	physdyn fit-topple --checkpoint runs/quickstart/best.ckpt --out runs/quickstart/best_topple.ckpt --physics --overwrite
 	physdyn test --checkpoint runs/quickstart/best_topple.ckpt --data data/quickstart.zarr --out reports/quickstart --overwrite
 	physdyn predict examples/meshes/bracket_mm.obj --scale 0.001 --lin-vel 1.2 0 0 --ang-vel 0 0 3 --seconds 4 \
 		--checkpoint runs/quickstart/best_topple.ckpt --compare-sim --out reports/quickstart/bracket.json \

@@ -6,9 +6,10 @@ Rows: always "no"; the topple head's rule (any step's probability >= 0.5) and th
 chosen on validation; one physics ratio (tilt kinetic energy / energy to tip over the edge the top tips
 towards) with its threshold chosen on validation; the logistic regression of ``physdyn fit-topple`` fitted
 on the quickstart store, the large store and the store of five times the shapes; with ``--families``
-gradient-boosted trees, a random forest and an MLP on the same features (scikit-learn needed); and the
-classifier shipped in the bundled checkpoint.
-About a minute on 2 CPU cores (the roll-outs of the validation and test splits dominate).
+gradient-boosted trees, a random forest and an MLP on the same features (scikit-learn needed); the 1 s
+PyBullet roll-out of the cloud's hull alone and ``fit-topple --physics`` (its four features added); and
+the classifier shipped in the bundled checkpoint.
+About two minutes on 2 CPU cores (the roll-outs of the validation and test splits dominate).
 """
 
 from __future__ import annotations
@@ -58,6 +59,12 @@ def main() -> None:
     rows.append((f"tilt energy ratio >= {t:.2f} (no learning)", ratio["test"] >= t))
     clf, _ = fit_topple_classifier(store, None, model.prior_friction)
     rows.append(("fit-topple on the quickstart store", clf.probability(x["test"]) >= 0.5))
+    # with the 1 s roll-out of the cloud's hull (the body's inertia): about 40 s more
+    x_physics = store_features(store, test, None, 0.25, 2, physics=True)
+    sim_says = x_physics[:, -1] > 0.5
+    rows.append(("the roll-out alone (tilt >= 45 deg within 1 s)", sim_says))
+    clf_physics, _ = fit_topple_classifier(store, None, model.prior_friction, physics=True)
+    rows.append(("fit-topple --physics on the quickstart store", clf_physics.probability(x_physics) >= 0.5))
     try:
         large = load_store(args.large)
         clf_large, _ = fit_topple_classifier(large, None, model.prior_friction)
@@ -76,7 +83,8 @@ def main() -> None:
         model.topple_classifier = shipped
         result = evaluate(model, store, "test")
         print(f"shipped classifier through the roll-out: test accuracy {result['topple']['accuracy']:.3f}")
-        rows.append(("shipped classifier (features on this cloud)", shipped.probability(x["test"]) >= 0.5))
+        features = x_physics if shipped.physics else x["test"]
+        rows.append(("shipped classifier (features on this cloud)", shipped.probability(features) >= 0.5))
     print(f"\n{args.data} test split: {len(test)} pushes, {int(y['test'].sum())} topple\n")
     print(f"{'predictor':<58} {'accuracy':>8} {'caught':>7} {'false alarms':>13}")
     for name, decided in rows:
