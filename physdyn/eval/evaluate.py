@@ -136,15 +136,35 @@ def predict_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, truth: 
     return _concat(parts)
 
 
+def _shape_single_steps(baseline: Baseline, store: StoreData, sims: np.ndarray, truth: dict[str, np.ndarray],
+                        chunk: int = 2048) -> dict[str, np.ndarray]:
+    """Teacher-forced changes (B, S, 3) of a baseline that simulates each shape (``cloud_sim``): one-step
+    roll-outs from the true state of every real step only (the padding past a sequence's end, most of
+    B x S on a store of mixed lengths, is left at zero: the metrics mask it), ``chunk`` starts at a time
+    so the clouds handed over stay small."""
+    B, S = truth["delta_position"].shape[:2]
+    out = {k: np.zeros((B, S, 3)) for k in DELTA_KEYS}
+    rows, steps = np.nonzero(truth["valid"][:, :S])
+    for lo in range(0, len(rows), chunk):
+        r, s = rows[lo : lo + chunk], steps[lo : lo + chunk]
+        one = baseline.rollout(truth["com_position"][r, s], truth["orientation_xyzw"][r, s], truth["linear_velocity"][r, s],
+                               truth["angular_velocity"][r, s], 1, truth["friction"][r], store.rate_hz,
+                               **_shapes(baseline, store, sims[r]))
+        for k in DELTA_KEYS:
+            out[k][r, s] = getattr(one, k)[:, 0]
+    return out
+
+
 def predict_single_steps(predictor: Any, store: StoreData, sims: np.ndarray, truth: dict[str, np.ndarray],
                          batch_size: int = 256, seed: int = 0) -> dict[str, np.ndarray]:
     """Teacher-forced changes (B, S, 3): the predictor gets the TRUE state at every step."""
     B, S = truth["delta_position"].shape[:2]
+    if isinstance(predictor, Baseline) and getattr(predictor, "uses_shapes", False):
+        return _shape_single_steps(predictor, store, sims, truth)
     if isinstance(predictor, Baseline):
         flat = lambda key, d: truth[key][:, :S].reshape(-1, d)  # noqa: E731  every true state is a start
         one = predictor.rollout(flat("com_position", 3), flat("orientation_xyzw", 4), flat("linear_velocity", 3),
-                                flat("angular_velocity", 3), 1, np.repeat(truth["friction"], S), store.rate_hz,
-                                **_shapes(predictor, store, np.repeat(sims, S)))
+                                flat("angular_velocity", 3), 1, np.repeat(truth["friction"], S), store.rate_hz)
         return {k: getattr(one, k)[:, 0].reshape(B, S, 3) for k in DELTA_KEYS}
     rng = np.random.default_rng(seed)
     parts = []
@@ -315,10 +335,11 @@ def compare(model: Any, store: StoreData | str, baselines: Sequence[Any] = ("sta
     skipped: dict[str, str] = {}
     for number, spec in enumerate(baselines, start=2):
         say(f"evaluating {spec if isinstance(spec, str) else predictor_name(spec, 'a baseline')} ({number} of {total})")
-        if spec in ("coulomb_slide", "cloud_sim") and np.isnan(store.friction).any():
+        named = spec if isinstance(spec, str) else getattr(spec, "name", None)
+        if named in ("coulomb_slide", "cloud_sim") and np.isnan(store.friction).any():
             # Imported real trials may not know their friction: a NaN baseline would read as "no data".
-            skipped[spec] = ("the store records no friction coefficient (sims/friction is NaN); "
-                             f"import with --friction MU to compare with {spec}")
+            skipped[named] = ("the store records no friction coefficient (sims/friction is NaN); "
+                              f"import with --friction MU to compare with {named}")
             continue
         r = evaluate(spec, store, split, warm_start, categories, **kwargs)
         name = r["predictor"]

@@ -25,10 +25,11 @@ import numpy as np
 import trimesh
 
 from physdyn.config import PhysicsConfig
+from physdyn.errors import ShapeError
 from physdyn.geometry.rotations import quat_multiply, quat_to_matrix
 from physdyn.sim.bullet import pb
 from physdyn.sim.body import RigidBodySpec
-from physdyn.sim.trajectory import record
+from physdyn.sim.trajectory import record, steps_per_frame
 from physdyn.sim.world import PhysicsWorld
 
 DENSITY = 1000.0  # kg/m^3; any value gives the same motion
@@ -49,17 +50,19 @@ def cloud_body_spec(points: np.ndarray, inertia_per_mass: np.ndarray | None = No
     try:
         hull = trimesh.convex.convex_hull(np.asarray(points, np.float64))
     except Exception as exc:  # qhull on a flat or degenerate cloud
-        raise ValueError(f"the point cloud has no 3D convex hull ({type(exc).__name__}); it must span a volume") from None
+        raise ShapeError(f"the point cloud has no 3D convex hull ({type(exc).__name__}); it must span a volume") from None
     with np.errstate(invalid="ignore", divide="ignore"):  # a flat hull's centroid divides by its zero volume
         solid = hull.is_volume and hull.volume > 0
     if not solid:
-        raise ValueError("the point cloud has no 3D convex hull; it must span a volume")
+        raise ShapeError("the point cloud has no 3D convex hull; it must span a volume")
     mass = DENSITY * float(hull.volume)
     d = np.asarray(hull.center_mass, np.float64)
     if inertia_per_mass is None:  # the hull's about its own centroid, moved to the cloud's origin (the centre of mass)
         inertia = DENSITY * np.asarray(hull.moment_inertia, np.float64) + mass * (d @ d * np.eye(3) - np.outer(d, d))
     else:
         inertia = mass * np.asarray(inertia_per_mass, np.float64).reshape(3, 3)
+    if not np.isfinite(inertia).all() or np.linalg.eigvalsh(inertia).min() <= 0:
+        raise ShapeError("the body's inertia must be a finite, positive definite 3 x 3 tensor")
     moments, axes = np.linalg.eigh(inertia)
     if np.linalg.det(axes) < 0:
         axes[:, 2] *= -1
@@ -94,7 +97,8 @@ class CloudSimulator:
         """The cloud's body alone on the ground, at rest in ``orientation_xyzw`` (mesh frame), centre of
         mass above the origin, given the velocities. Its hull shape is made once per distinct cloud (a
         batch often pushes one object many times); the caller removes the body after its roll-out."""
-        key = np.ascontiguousarray(points, np.float64).tobytes() + (
+        points = np.asarray(points, np.float64)
+        key = points.tobytes() + (
             b"" if inertia_per_mass is None else np.ascontiguousarray(inertia_per_mass, np.float64).tobytes())
         if key not in self._bodies and len(self._bodies) >= MAX_SHAPES:  # a long-lived simulator: start afresh
             self.world.close()
@@ -124,36 +128,37 @@ class CloudSimulator:
         physics steps (60 Hz). A roll-out stops once the body lies past 90 degrees (it has toppled) or
         rests; later horizons then keep the largest tilt so far.
         """
-        points = np.asarray(points, np.float64)
         v0 = np.asarray(lin_vel, np.float64).reshape(-1, 3)
         w0 = np.asarray(ang_vel, np.float64).reshape(-1, 3)
         dt = self.physics.time_step
         ends = [max(1, int(round(h / (dt * TILT_EVERY)))) for h in horizons_s]
         out = np.zeros((len(points), len(horizons_s)))
-        cid = self.world.client
         rest_v2, rest_w2 = self.physics.rest_linear_speed ** 2, self.physics.rest_angular_speed ** 2
         for b in range(len(points)):
             body, spec = self._start(points[b], np.array([0.0, 0.0, 0.0, 1.0]), v0[b], w0[b], friction,
                                      None if inertia_per_mass is None else inertia_per_mass[b])
+            cid = self.world.client  # after _start: it may have rebuilt the world
             # the initial up direction (world z at step 0) in the base frame: the principal axes' z components
             up = spec.principal_axes[2]
             largest, k, h = 0.0, 0, 0
-            while k < ends[-1]:
-                self.world.step(TILT_EVERY)
-                k += 1
-                m = pb.getMatrixFromQuaternion(pb.getBasePositionAndOrientation(body, physicsClientId=cid)[1])
-                cos_tilt = m[6] * up[0] + m[7] * up[1] + m[8] * up[2]
-                largest = max(largest, math.degrees(math.acos(max(-1.0, min(1.0, cos_tilt)))))
-                while h < len(ends) and k >= ends[h]:
-                    out[b, h] = largest
-                    h += 1
-                if largest > 90.0:
-                    break
-                v, w = pb.getBaseVelocity(body, physicsClientId=cid)
-                if v[0] ** 2 + v[1] ** 2 + v[2] ** 2 < rest_v2 and w[0] ** 2 + w[1] ** 2 + w[2] ** 2 < rest_w2:
-                    break
+            try:
+                while k < ends[-1]:
+                    self.world.step(TILT_EVERY)
+                    k += 1
+                    m = pb.getMatrixFromQuaternion(pb.getBasePositionAndOrientation(body, physicsClientId=cid)[1])
+                    cos_tilt = m[6] * up[0] + m[7] * up[1] + m[8] * up[2]
+                    largest = max(largest, math.degrees(math.acos(max(-1.0, min(1.0, cos_tilt)))))
+                    while h < len(ends) and k >= ends[h]:
+                        out[b, h] = largest
+                        h += 1
+                    if largest > 90.0:
+                        break
+                    v, w = pb.getBaseVelocity(body, physicsClientId=cid)
+                    if v[0] ** 2 + v[1] ** 2 + v[2] ** 2 < rest_v2 and w[0] ** 2 + w[1] ** 2 + w[2] ** 2 < rest_w2:
+                        break
+            finally:  # a body left behind would stand in the next roll-out's way
+                self.world.remove_body(body)
             out[b, h:] = largest
-            self.world.remove_body(body)
         return out
 
     def trajectories(self, points: np.ndarray, orientation_xyzw: np.ndarray, com_position: np.ndarray,
@@ -169,20 +174,22 @@ class CloudSimulator:
         ``com_position`` (B, T, 3), ``orientation_xyzw`` (B, T, 4), ``linear_velocity`` and
         ``angular_velocity`` (B, T, 3), T = steps + 1.
         """
-        points = np.asarray(points, np.float64)
         q0 = np.asarray(orientation_xyzw, np.float64).reshape(-1, 4)
         p0 = np.asarray(com_position, np.float64).reshape(-1, 3)
         v0 = np.asarray(lin_vel, np.float64).reshape(-1, 3)
         w0 = np.asarray(ang_vel, np.float64).reshape(-1, 3)
         mu = np.broadcast_to(np.asarray(friction, np.float64), (len(points),))
         T = int(steps) + 1
+        steps_per_frame(self.physics.time_step, rate_hz)  # a rate the physics step does not divide: refused before any body
         out = {"com_position": np.zeros((len(points), T, 3)), "orientation_xyzw": np.zeros((len(points), T, 4)),
                "linear_velocity": np.zeros((len(points), T, 3)), "angular_velocity": np.zeros((len(points), T, 3))}
         for b in range(len(points)):
             body, spec = self._start(points[b], q0[b], v0[b], w0[b], mu[b],
                                      None if inertia_per_mass is None else inertia_per_mass[b])
-            traj = record(self.world, body, spec, rate_hz, max_frames=T)
-            self.world.remove_body(body)
+            try:
+                traj = record(self.world, body, spec, rate_hz, max_frames=T)
+            finally:
+                self.world.remove_body(body)
             n = len(traj)
             out["com_position"][b, :n] = traj.com_position - traj.com_position[0] + p0[b]
             out["orientation_xyzw"][b, :n] = traj.orientation_xyzw
