@@ -6,7 +6,7 @@
 
 ``--set`` changes a setting that acts at inference only (chosen on validation after training, as the
 bundled model's rest gate was) or the model's name in reports: ``INFERENCE_KEYS``; the weights stay as
-trained.
+trained. In a file of two networks (``--linear-from``, or such a file as SRC) a setting reaches both.
 
 ``--linear-from CKPT`` combines two trained models into one file: the velocity and position changes come
 from CKPT's network (best trained with ``model.residual_channels=linear``), spin, rotation and toppling from
@@ -85,10 +85,14 @@ def export_checkpoint(src: str | Path, dst: str | Path, overwrite: bool = False,
     if dst.exists() and not overwrite:
         raise PhysdynError(f"{dst} exists; pass --overwrite to replace it")
     slim = {key: checkpoint[key] for key in KEEP if key in checkpoint}
-    if settings:
-        slim["hyper_parameters"] = apply_settings(slim["hyper_parameters"], settings)
     if linear_from is not None:
         slim = with_linear_channels(slim, read_checkpoint(linear_from), str(linear_from))
+    if settings:
+        slim["hyper_parameters"] = apply_settings(slim["hyper_parameters"], settings)
+        if slim.get("linear_channels"):  # both networks run with the setting (each computes its own prior)
+            network = [item for item in settings if item.partition("=")[0] != "name"]
+            linear = slim["linear_channels"]["hyper_parameters"]
+            slim["linear_channels"] = {**slim["linear_channels"], "hyper_parameters": apply_settings(linear, network)}
     dst.parent.mkdir(parents=True, exist_ok=True)
     with atomic_output(dst) as tmp:  # never a half-written checkpoint under the final name
         torch.save(slim, tmp)

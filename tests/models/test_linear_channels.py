@@ -169,3 +169,20 @@ def test_combining_refuses_what_cannot_be_combined(combined, tiny_store, tmp_pat
     with pytest.raises(ConfigError, match="different rates"):
         export_checkpoint(a, tmp_path / "rates.ckpt", linear_from=_save(other_rate, tmp_path / "r.ckpt"))
     assert not (tmp_path / "nested.ckpt").exists() and not (tmp_path / "rates.ckpt").exists()
+
+
+def test_an_inference_setting_reaches_both_networks_of_a_combined_file(combined, tmp_path, store):
+    # export --set on a combined file (or with --linear-from) sets both networks: each computes its own prior
+    _, _, path, before = combined
+    assert before.linear_channels.config.model.contact_footprint == "spread"
+    again = load_checkpoint(export_checkpoint(path, tmp_path / "area.ckpt",
+                                              settings=["model.contact_footprint=area", "name=boxes"]))
+    assert again.config.model.contact_footprint == "area" and again.linear_channels.config.model.contact_footprint == "area"
+    assert again.config.name == "boxes"
+    sims = select_sequences(store, "test")[:4]
+    truth = gather_truth(store, sims)
+    points = world_oriented_points(store.points[store.shape_id[sims]][:, :64], truth["orientation_xyzw"][:, 0]).astype(np.float32)
+    v0, w0 = truth["linear_velocity"][:, 0], truth["angular_velocity"][:, 0]
+    with torch.inference_mode():
+        a, b = batch_rollout(before, points, v0, w0, 10)["changes"], batch_rollout(again, points, v0, w0, 10)["changes"]
+    assert (a - b)[..., LINEAR].abs().max() > 1e-6  # the velocity network's prior changed too
