@@ -45,7 +45,7 @@ def cloud_body_spec(points: np.ndarray, inertia_per_mass: np.ndarray | None = No
     """points: (N, 3) the cloud in the body frame (its origin is the centre of mass) -> the simulator's body:
     the cloud's convex hull, solid at uniform density, its inertia taken about the origin; or, where the
     body's own inertia is known (a mesh or a store carries it), ``inertia_per_mass`` (3, 3) in the cloud's
-    axes (I / m). The hull misjudges hollow and concave solids: per unit mass 0.75-0.8x a mug's or a
+    axes (I / m; one that is not finite and positive definite is ignored). The hull misjudges hollow and concave solids: per unit mass 0.75-0.8x a mug's or a
     trash can's, up to 1.2x an irregular blob's (docs/ablations.md)."""
     try:
         hull = trimesh.convex.convex_hull(np.asarray(points, np.float64))
@@ -57,12 +57,13 @@ def cloud_body_spec(points: np.ndarray, inertia_per_mass: np.ndarray | None = No
         raise ShapeError("the point cloud has no 3D convex hull; it must span a volume")
     mass = DENSITY * float(hull.volume)
     d = np.asarray(hull.center_mass, np.float64)
-    if inertia_per_mass is None:  # the hull's about its own centroid, moved to the cloud's origin (the centre of mass)
+    given = None if inertia_per_mass is None else np.asarray(inertia_per_mass, np.float64).reshape(3, 3)
+    if given is not None and (not np.isfinite(given).all() or np.linalg.eigvalsh(given).min() <= 0):
+        given = None  # a store or mesh without usable mass properties (NaN, zeros): the hull's, as the contact prior does
+    if given is None:  # the hull's about its own centroid, moved to the cloud's origin (the centre of mass)
         inertia = DENSITY * np.asarray(hull.moment_inertia, np.float64) + mass * (d @ d * np.eye(3) - np.outer(d, d))
     else:
-        inertia = mass * np.asarray(inertia_per_mass, np.float64).reshape(3, 3)
-    if not np.isfinite(inertia).all() or np.linalg.eigvalsh(inertia).min() <= 0:
-        raise ShapeError("the body's inertia must be a finite, positive definite 3 x 3 tensor")
+        inertia = mass * given
     moments, axes = np.linalg.eigh(inertia)
     if np.linalg.det(axes) < 0:
         axes[:, 2] *= -1

@@ -29,6 +29,9 @@ def test_a_box_cloud_makes_the_box_solid():
     # the inertia is taken about the cloud's origin (the known centre of mass), not the hull's centroid
     shifted = cloud_body_spec(_box_cloud((a, b, c)) + [0.0, 0.0, 0.05])
     assert shifted.inertia_diag.max() / shifted.mass > per_mass.max() + 0.05 ** 2 * 0.9
+    # mass properties a store does not know (NaN, zeros) fall back to the hull's, as the contact prior's do
+    for unknown in (np.full((3, 3), np.nan), np.zeros((3, 3))):
+        np.testing.assert_allclose(cloud_body_spec(_box_cloud((a, b, c)), unknown).inertia_diag, spec.inertia_diag)
     with pytest.raises(ShapeError, match="no 3D convex hull"):
         cloud_body_spec(np.c_[np.random.default_rng(0).normal(size=(64, 2)), np.zeros(64)])  # flat
 
