@@ -19,7 +19,7 @@ from physdyn.data.windows import frame_targets, store_spin_inertia, store_world_
 from physdyn.errors import PhysdynError
 from physdyn.eval import metrics as M
 from physdyn.eval.baselines import Baseline, predictor_name, resolve_predictor
-from physdyn.eval.rollout import DELTA_KEYS, RolloutResult, rollout, teacher_forced
+from physdyn.eval.rollout import DELTA_KEYS, RolloutResult, rollout, sim_steps, teacher_forced
 
 GROUPS = ("non_toppling", "toppling", "all")
 
@@ -127,12 +127,14 @@ def predict_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, truth: 
         warm = (truth["linear_velocity"][sl, 1:k + 1], truth["angular_velocity"][sl, 1:k + 1]) if k else None
         points = _model_points(store, sims[sl], predictor.num_points, rng)
         classifier = getattr(predictor, "topple_classifier", None)
+        simulates = classifier is not None or sim_steps(predictor) > 0
         topple_points = None
-        if classifier is not None:  # its own cloud size, drawn from a stream of its own: the model's draws stay as they were
-            topple_points = _model_points(store, sims[sl], classifier.num_points, np.random.default_rng([seed, sl.start]))
+        if simulates:  # the classifier's cloud size (else the whole cloud), drawn from a stream of its own: the model's draws stay as they were
+            topple_points = _model_points(store, sims[sl], classifier.num_points if classifier is not None else None,
+                                          np.random.default_rng([seed, sl.start]))
         parts.append(rollout(predictor, points, q0, p0, v0, w0, steps, warm, topple_points_body=topple_points,
                              spin_inertia=store_spin_inertia(store, sims[sl], q0),
-                             body_inertia=store_world_inertia(store, sims[sl], q0) if classifier is not None else None))
+                             body_inertia=store_world_inertia(store, sims[sl], q0) if simulates else None))
     return _concat(parts)
 
 

@@ -147,8 +147,11 @@ def rollout(
     spin_inertia: optional (B,) I_zz / m of each body about the world vertical at step 0, for models whose
     contact prior takes the body's (``model.contact_inertia=body``; ``physdyn.geometry.mass.vertical_inertia``).
     body_inertia: optional (B, 3, 3) I / m of each body in world axes at step 0, for a topple classifier
-    that simulates the cloud's hull (``fit-topple --physics``; ``physdyn.geometry.mass.world_inertia_per_mass``);
-    without it that roll-out takes the hull's inertia.
+    that simulates the cloud's hull (``fit-topple --physics``; ``physdyn.geometry.mass.world_inertia_per_mass``)
+    and for ``model.sim_seconds``; without it those roll-outs take the hull's inertia.
+    A model with ``model.sim_seconds`` > 0 takes its first k steps (those seconds at its rate) from PyBullet run on the hull of
+    ``topple_points_body`` (default ``points_body``) and continues from the simulated state, its recurrent
+    state warmed up on the simulated velocities (``simulated_start``); a caller's warm start replaces it.
     """
     if steps < 0:
         raise ValueError(f"steps must be >= 0, got {steps}")
@@ -157,6 +160,12 @@ def rollout(
     B = q0.shape[0]
     warm_v, warm_w = _warm_start(warm_start_velocities, B)
     K = warm_v.shape[1]
+    simulated = None
+    if not K and steps and sim_steps(model):
+        simulated = simulated_start(model, topple_points_body if topple_points_body is not None else points_body, q0,
+                                    com_position0, lin_vel0, ang_vel0, min(sim_steps(model), steps), body_inertia)
+        warm_v, warm_w = simulated["linear_velocity"][:, 1:], simulated["angular_velocity"][:, 1:]
+        K = warm_v.shape[1]
     points = _oriented(_numpy(points_body), q0).astype(np.float32)
     if hasattr(model, "rollout_changes") and not stepwise:
         kwargs = {} if spin_inertia is None else {"spin_inertia": spin_inertia}
@@ -172,6 +181,8 @@ def rollout(
         w = _numpy(ang_vel0).reshape(B, 3) if not steps else fed_w[:, -1] + deltas["delta_angular_velocity"][:, -1]
     else:
         deltas, fed_v, fed_w, topple, v, w = _stepwise(model, points, lin_vel0, ang_vel0, steps, warm_v, warm_w, spin_inertia)
+    if simulated is not None:  # the simulated steps' changes, then the networks' from the simulated state
+        deltas = {k: np.concatenate([simulated[k], deltas[k][:, K:]], axis=1) for k in DELTA_KEYS}
     states = integrate(com_position0, q0, lin_vel0, ang_vel0, deltas)
     if K and steps:
         # the velocity track restarts from each observation: report what was fed, then the last update
@@ -187,6 +198,41 @@ def rollout(
                                          None if body_inertia is None else _numpy(body_inertia).reshape(B, 3, 3))
     return RolloutResult(**states, topple_probability=probability, **deltas, fed_linear_velocity=fed_v,
                          fed_angular_velocity=fed_w)
+
+
+def sim_steps(model: Any) -> int:
+    """The steps ``model.sim_seconds`` of a ``DynamicsModel`` spans at its rate (0 for anything else)."""
+    seconds = float(getattr(getattr(getattr(model, "config", None), "model", None), "sim_seconds", 0.0) or 0.0)
+    return int(round(seconds / float(model.prior_dt))) if seconds > 0 else 0
+
+
+def simulated_start(model: Any, points_body: np.ndarray, q0: np.ndarray, p0: np.ndarray, v0: np.ndarray, w0: np.ndarray,
+                    steps: int, body_inertia: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """The first ``steps`` steps of each push from PyBullet on its cloud's hull (``physdyn.sim.cloud_body``) at
+    the model's rate and friction: ``linear_velocity`` and ``angular_velocity`` (B, steps + 1, 3) and the
+    changes ``delta_*`` (B, steps, 3) between the simulated states (``delta_rotation`` world axis-angle).
+    points_body (B, N, 3) body frame; body_inertia optional (B, 3, 3) I / m in world axes at step 0."""
+    from physdyn.config import PhysicsConfig
+    from physdyn.geometry.rotations import quat_conjugate, quat_to_matrix, quat_to_rotvec
+    from physdyn.sim.cloud_body import shared_simulator  # PyBullet: only for models that simulate
+
+    q0 = _numpy(q0).reshape(-1, 4)
+    inertia = None
+    if body_inertia is not None:  # world axes at step 0 -> body axes, as the body is built in its own frame
+        R = quat_to_matrix(q0)
+        inertia = np.swapaxes(R, 1, 2) @ _numpy(body_inertia).reshape(-1, 3, 3) @ R
+    rate = 1.0 / float(model.prior_dt)
+    # the conventions' physics step (1/960 s), not the topple features' 1/240 s: at 1/240 s the contact
+    # chatter of the first steps cost Table 1's velocity error 23 % against 17 % (docs/ablations.md)
+    with shared_simulator(PhysicsConfig().time_step) as simulator:
+        sim = simulator.trajectories(_numpy(points_body), q0, _numpy(p0).reshape(-1, 3), _numpy(v0).reshape(-1, 3),
+                                     _numpy(w0).reshape(-1, 3), float(model.prior_friction), steps, rate, inertia)
+    q = sim["orientation_xyzw"]
+    return {"linear_velocity": sim["linear_velocity"], "angular_velocity": sim["angular_velocity"],
+            "delta_linear_velocity": np.diff(sim["linear_velocity"], axis=1),
+            "delta_angular_velocity": np.diff(sim["angular_velocity"], axis=1),
+            "delta_position": np.diff(sim["com_position"], axis=1),
+            "delta_rotation": quat_to_rotvec(quat_multiply(q[:, 1:], quat_conjugate(q[:, :-1])))}
 
 
 def _if_taken(model: Any, spin_inertia: np.ndarray | None) -> np.ndarray | None:

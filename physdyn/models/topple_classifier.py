@@ -22,7 +22,6 @@ the training split's toppling sequences that have toppled by step t.
 
 from __future__ import annotations
 
-import threading
 from dataclasses import dataclass
 from typing import Any
 
@@ -134,8 +133,6 @@ def topple_features(points: np.ndarray, linear_velocity: np.ndarray, angular_vel
     ], axis=1)
 
 
-_SIMULATOR = None
-_SIMULATOR_LOCK = threading.Lock()  # one PyBullet client is not to be stepped from two threads at once
 
 
 def physics_features(points: np.ndarray, linear_velocity: np.ndarray, angular_velocity: np.ndarray,
@@ -144,13 +141,10 @@ def physics_features(points: np.ndarray, linear_velocity: np.ndarray, angular_ve
     the largest tilts of a short PyBullet roll-out of each cloud's hull (``CloudSimulator.max_tilt``).
     inertia: (B, 3, 3) each body's own I / m in world axes where known (a store's shapes, a mesh), else
     the hull's: with it, 0.958 against 0.928 on the external validation set from the roll-out alone."""
-    global _SIMULATOR
-    with _SIMULATOR_LOCK:
-        if _SIMULATOR is None:  # one PyBullet world per process, reused: connecting one cost more than a roll-out
-            from physdyn.sim.cloud_body import CloudSimulator  # PyBullet: only for classifiers fitted with it
+    from physdyn.sim.cloud_body import shared_simulator  # PyBullet: only for classifiers fitted with it
 
-            _SIMULATOR = CloudSimulator()
-        tilt = _SIMULATOR.max_tilt(points, linear_velocity, angular_velocity, friction, inertia)
+    with shared_simulator() as simulator:
+        tilt = simulator.max_tilt(points, linear_velocity, angular_velocity, friction, inertia)
     return np.concatenate([tilt, (tilt[:, -1:] >= 45.0).astype(np.float64)], axis=1)
 
 

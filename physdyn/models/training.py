@@ -42,6 +42,9 @@ class FitResult:
     metrics: dict[str, float] = field(default_factory=dict)  # final logged values, plus best_val_loss
 
 
+MAX_SIM_SECONDS = 4.0  # model.sim_seconds: beyond that the prediction would be the simulator's alone
+
+
 def validate_experiment_config(cfg: ExperimentConfig) -> ExperimentConfig:
     """Check what the schema cannot: component params against their registries, choices, trainer keys."""
     m = cfg.model
@@ -57,6 +60,9 @@ def validate_experiment_config(cfg: ExperimentConfig) -> ExperimentConfig:
     for key, value, allowed in choices:
         if value not in allowed:
             raise ConfigError(f"config key '{key}': '{value}' is not one of {', '.join(allowed)}")
+    if not 0 <= m.sim_seconds <= MAX_SIM_SECONDS:
+        raise ConfigError(f"config key 'model.sim_seconds': seconds simulated before the networks take over, "
+                          f"0 to {MAX_SIM_SECONDS:g}, got {m.sim_seconds}")
     for key in ("residual_gate_linear", "residual_gate_angular"):
         value = getattr(m, key)
         if not (value >= 0 and np.isfinite(value)):

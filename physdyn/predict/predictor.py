@@ -24,7 +24,7 @@ import torch
 from physdyn.errors import PhysdynError, PredictionError, PredictionWarning
 from physdyn.eval.baselines import load_checkpoint
 from physdyn.eval.metrics import TOPPLE_THRESHOLD
-from physdyn.eval.rollout import rollout
+from physdyn.eval.rollout import rollout, sim_steps
 from physdyn.geometry.mass import vertical_inertia, world_inertia_per_mass
 from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_rotvec
 from physdyn.predict.body import PreparedBody, initial_pose, prepare_body
@@ -206,8 +206,9 @@ class Predictor:
         body_inertia = np.stack([posed[id(body), q.tobytes()][2] for body, q in zip(bodies, q0)])
         points = np.stack([body.points_body(self.num_points) for body in bodies])
         classifier = getattr(self.model, "topple_classifier", None)
-        topple_points = None if classifier is None else np.stack(
-            [body.points_body(classifier.num_points or DEFAULT_NUM_POINTS) for body in bodies])
+        dense = None if classifier is None else classifier.num_points  # the cloud its simulations read
+        topple_points = None if classifier is None and not sim_steps(self.model) else np.stack(
+            [body.points_body(dense or DEFAULT_NUM_POINTS) for body in bodies])
         results: list[dict[str, Any] | None] = [None] * R
         for T in sorted(set(steps)):
             same = np.flatnonzero(np.asarray(steps) == T)

@@ -19,7 +19,10 @@ cost more than the roll-out itself.
 from __future__ import annotations
 
 import math
+import threading
+from contextlib import contextmanager
 from dataclasses import replace
+from typing import Iterator
 
 import numpy as np
 import trimesh
@@ -199,3 +202,17 @@ class CloudSimulator:
             out["com_position"][b, n:] = out["com_position"][b, n - 1]
             out["orientation_xyzw"][b, n:] = traj.orientation_xyzw[-1]
         return out
+
+
+_SHARED: dict[float, CloudSimulator] = {}
+_SHARED_LOCK = threading.Lock()  # one PyBullet client is not to be stepped from two threads at once
+
+
+@contextmanager
+def shared_simulator(time_step: float = CLOUD_TIME_STEP) -> Iterator[CloudSimulator]:
+    """The process's ``CloudSimulator`` of this physics step, held for the caller alone while in use:
+    predictions reuse one world and its hull shapes (connecting a world cost more than a roll-out)."""
+    with _SHARED_LOCK:
+        if time_step not in _SHARED:
+            _SHARED[time_step] = CloudSimulator(time_step=time_step)
+        yield _SHARED[time_step]

@@ -286,3 +286,46 @@ def test_physdyn_test_with_cloud_sim_reports_the_simulator_on_the_cloud(tiny_che
     sim, slide = metrics["results"]["cloud_sim"]["headline"], metrics["results"]["coulomb_slide"]["headline"]
     assert sim["final_position_m_median"] < slide["final_position_m_median"]
     assert any(line.startswith("| cloud_sim |") for line in (tmp_path / "rep" / "report.md").read_text().splitlines())
+
+
+def test_sim_seconds_simulates_the_impact_then_the_networks_continue(tiny_checkpoint, store, tmp_path):
+    # model.sim_seconds (an inference setting): the first steps are PyBullet's on the cloud's hull, with the
+    # body's inertia, at the conventions' physics step; from there the networks' own changes, their LSTM
+    # warmed up on the simulated velocities.
+    from physdyn.config import PhysicsConfig
+    from physdyn.data.windows import store_world_inertia
+    from physdyn.geometry.rotations import quat_to_matrix
+    from physdyn.models.export import export_checkpoint
+    from physdyn.sim.cloud_body import CloudSimulator
+
+    path = export_checkpoint(tiny_checkpoint, tmp_path / "sim.ckpt", settings=["model.sim_seconds=0.2"])
+    plain, hybrid = load_checkpoint(tiny_checkpoint), load_checkpoint(path)
+    k = round(0.2 * store.rate_hz)  # 3 steps at 15 Hz
+    sims = select_sequences(store, "test")[:5]
+    truth = gather_truth(store, sims, 20)
+    p0, q0, v0, w0 = _first_states(truth)
+    cloud = store.points[store.shape_id[sims]]
+    points = cloud[:, :64]
+    inertia = store_world_inertia(store, sims, q0)
+    got = rollout(hybrid, points, q0, p0, v0, w0, 20, topple_points_body=cloud, body_inertia=inertia)
+    with CloudSimulator(time_step=PhysicsConfig().time_step) as sim:
+        R = quat_to_matrix(q0)
+        expected = sim.trajectories(cloud, q0, p0, v0, w0, 0.25, k, store.rate_hz, np.swapaxes(R, 1, 2) @ inertia @ R)
+    np.testing.assert_allclose(got.com_position[:, : k + 1], expected["com_position"], atol=1e-9)
+    np.testing.assert_allclose(got.linear_velocity[:, : k + 1], expected["linear_velocity"], atol=1e-9)
+    np.testing.assert_allclose(np.abs((got.orientation_xyzw[:, : k + 1] * expected["orientation_xyzw"]).sum(-1)), 1.0, atol=1e-9)
+    # after step k: the network's changes, as with those velocities fed as a warm start
+    warm = rollout(plain, points, q0, p0, v0, w0, 20, (expected["linear_velocity"][:, 1:], expected["angular_velocity"][:, 1:]))
+    for key in DELTA_KEYS:
+        np.testing.assert_allclose(getattr(got, key)[:, k:], getattr(warm, key)[:, k:], atol=1e-6, err_msg=key)
+    again = integrate(p0, q0, v0, w0, got.deltas())  # the states are their changes' sum: one trajectory
+    np.testing.assert_allclose(again["com_position"], got.com_position, atol=1e-9)
+    # a caller's warm start (observed velocities) takes the place of the simulated start
+    observed = (truth["linear_velocity"][:, 1:3], truth["angular_velocity"][:, 1:3])
+    np.testing.assert_allclose(rollout(hybrid, points, q0, p0, v0, w0, 20, observed).com_position,
+                               rollout(plain, points, q0, p0, v0, w0, 20, observed).com_position, atol=1e-9)
+    # through evaluate and the public predictor, and 0 leaves a model as it was
+    assert np.isfinite(evaluate(hybrid, store, "test")["headline"]["final_position_m_median"])
+    zero = load_checkpoint(export_checkpoint(path, tmp_path / "zero.ckpt", settings=["model.sim_seconds=0"]))
+    np.testing.assert_allclose(rollout(zero, points, q0, p0, v0, w0, 20).com_position,
+                               rollout(plain, points, q0, p0, v0, w0, 20).com_position, atol=1e-12)
