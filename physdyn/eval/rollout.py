@@ -151,7 +151,8 @@ def rollout(
     and for ``model.sim_seconds``; without it those roll-outs take the hull's inertia.
     A model with ``model.sim_seconds`` > 0 takes its first k steps (those seconds at its rate) from PyBullet run on the hull of
     ``topple_points_body`` (default ``points_body``) and continues from the simulated state, its recurrent
-    state warmed up on the simulated velocities (``simulated_start``); a caller's warm start replaces it.
+    state warmed up on the simulated velocities and orientations (``simulated_start``); a caller's warm
+    start replaces it.
     """
     if steps < 0:
         raise ValueError(f"steps must be >= 0, got {steps}")
@@ -166,11 +167,14 @@ def rollout(
                                     com_position0, lin_vel0, ang_vel0, min(sim_steps(model), steps), body_inertia)
         warm_v, warm_w = simulated["linear_velocity"][:, 1:], simulated["angular_velocity"][:, 1:]
         K = warm_v.shape[1]
+    warm_turn = None if simulated is None else relative_rotation(q0, simulated["orientation_xyzw"][:, 1:])
     points = _oriented(_numpy(points_body), q0).astype(np.float32)
     if hasattr(model, "rollout_changes") and not stepwise:
         kwargs = {} if spin_inertia is None else {"spin_inertia": spin_inertia}
         if getattr(model, "topple_classifier", None) is not None:
             kwargs["topple"] = False  # the classifier's probabilities replace the head's
+        if warm_turn is not None:
+            kwargs["warm_turn"] = warm_turn
         out = model.rollout_changes(points, lin_vel0, ang_vel0, steps, warm_v if K else None, warm_w if K else None, **kwargs)
         changes, fed = _numpy(out["changes"]), _numpy(out["fed"])
         deltas = {k: changes[..., 3 * i : 3 * i + 3] for i, k in enumerate(DELTA_KEYS)}
@@ -180,9 +184,12 @@ def rollout(
         v = _numpy(lin_vel0).reshape(B, 3) if not steps else fed_v[:, -1] + deltas["delta_linear_velocity"][:, -1]
         w = _numpy(ang_vel0).reshape(B, 3) if not steps else fed_w[:, -1] + deltas["delta_angular_velocity"][:, -1]
     else:
-        deltas, fed_v, fed_w, topple, v, w = _stepwise(model, points, lin_vel0, ang_vel0, steps, warm_v, warm_w, spin_inertia)
+        deltas, fed_v, fed_w, topple, v, w = _stepwise(model, points, lin_vel0, ang_vel0, steps, warm_v, warm_w, spin_inertia,
+                                                       warm_turn)
     if simulated is not None:  # the simulated steps' changes, then the networks' from the simulated state
         deltas = {k: np.concatenate([simulated[k], deltas[k][:, K:]], axis=1) for k in DELTA_KEYS}
+        if steps <= K:  # the last state is a simulated one
+            v, w = simulated["linear_velocity"][:, -1], simulated["angular_velocity"][:, -1]
     states = integrate(com_position0, q0, lin_vel0, ang_vel0, deltas)
     if K and steps:
         # the velocity track restarts from each observation: report what was fed, then the last update
@@ -209,8 +216,9 @@ def sim_steps(model: Any) -> int:
 def simulated_start(model: Any, points_body: np.ndarray, q0: np.ndarray, p0: np.ndarray, v0: np.ndarray, w0: np.ndarray,
                     steps: int, body_inertia: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """The first ``steps`` steps of each push from PyBullet on its cloud's hull (``physdyn.sim.cloud_body``) at
-    the model's rate and friction: ``linear_velocity`` and ``angular_velocity`` (B, steps + 1, 3) and the
-    changes ``delta_*`` (B, steps, 3) between the simulated states (``delta_rotation`` world axis-angle).
+    the model's rate and friction: ``linear_velocity`` and ``angular_velocity`` (B, steps + 1, 3),
+    ``orientation_xyzw`` (B, steps + 1, 4) and the changes ``delta_*`` (B, steps, 3) between the simulated
+    states (``delta_rotation`` world axis-angle).
     points_body (B, N, 3) body frame; body_inertia optional (B, 3, 3) I / m in world axes at step 0."""
     from physdyn.config import PhysicsConfig
     from physdyn.geometry.rotations import quat_conjugate, quat_to_matrix, quat_to_rotvec
@@ -228,7 +236,7 @@ def simulated_start(model: Any, points_body: np.ndarray, q0: np.ndarray, p0: np.
         sim = simulator.trajectories(_numpy(points_body), q0, _numpy(p0).reshape(-1, 3), _numpy(v0).reshape(-1, 3),
                                      _numpy(w0).reshape(-1, 3), float(model.prior_friction), steps, rate, inertia)
     q = sim["orientation_xyzw"]
-    return {"linear_velocity": sim["linear_velocity"], "angular_velocity": sim["angular_velocity"],
+    return {"linear_velocity": sim["linear_velocity"], "angular_velocity": sim["angular_velocity"], "orientation_xyzw": q,
             "delta_linear_velocity": np.diff(sim["linear_velocity"], axis=1),
             "delta_angular_velocity": np.diff(sim["angular_velocity"], axis=1),
             "delta_position": np.diff(sim["com_position"], axis=1),
@@ -254,7 +262,7 @@ def _oriented(points_body: np.ndarray, q0: np.ndarray) -> np.ndarray:
 
 
 def _stepwise(model: Any, points: np.ndarray, lin_vel0: Any, ang_vel0: Any, steps: int, warm_v: np.ndarray,
-              warm_w: np.ndarray, spin_inertia: np.ndarray | None = None):
+              warm_w: np.ndarray, spin_inertia: np.ndarray | None = None, warm_turn: np.ndarray | None = None):
     """The reference roll-out loop, one ``model.step`` per step with numpy state between steps: the path of
     any object with ``encode_points`` and ``step``, and the check on ``rollout_changes``."""
     B, K = points.shape[0], warm_v.shape[1]
@@ -270,6 +278,8 @@ def _stepwise(model: Any, points: np.ndarray, lin_vel0: Any, ang_vel0: Any, step
     for t in range(steps):
         if 1 <= t <= K:
             v, w = warm_v[:, t - 1].copy(), warm_w[:, t - 1].copy()
+            if warm_turn is not None and turn is not None:
+                turn = warm_turn[:, t - 1].copy()
         fed_v[:, t], fed_w[:, t] = v, w
         pred = model.step(feature, v, w, state) if turn is None else model.step(feature, v, w, state, turn)
         state = pred.state

@@ -24,7 +24,8 @@ from physdyn.models.rotations import quat_multiply, rotvec_to_quat
 
 
 def batch_rollout(model: Any, points: Any, linear_velocity0: Any, angular_velocity0: Any, steps: int, warm_linear: Any = None,
-                  warm_angular: Any = None, spin_inertia: Any = None, topple: bool = True) -> dict[str, torch.Tensor | None]:
+                  warm_angular: Any = None, spin_inertia: Any = None, topple: bool = True,
+                  warm_turn: Any = None) -> dict[str, torch.Tensor | None]:
     """``DynamicsModel.rollout_changes`` for a batch, in torch (call it through that method, which sets eval
     and inference mode): the same arguments and results."""
     device, f64 = model.device, torch.float64
@@ -40,6 +41,8 @@ def batch_rollout(model: Any, points: Any, linear_velocity0: Any, angular_veloci
     if K:
         warm_linear = torch.as_tensor(warm_linear, dtype=f64, device=device)
         warm_angular = torch.as_tensor(warm_angular, dtype=f64, device=device)
+    if warm_turn is not None:
+        warm_turn = torch.as_tensor(warm_turn, dtype=f64, device=device)
     changes = torch.empty(B, steps, 12, dtype=f64, device=device)
     fed = torch.empty(B, steps, 6, dtype=f64, device=device)
     want_topple = topple and model.predicts_topple
@@ -61,6 +64,8 @@ def batch_rollout(model: Any, points: Any, linear_velocity0: Any, angular_veloci
     for t in range(steps):
         if 1 <= t <= K:
             v, w = warm_linear[:, t - 1], warm_angular[:, t - 1]
+            if warm_turn is not None and turn is not None:
+                turn = warm_turn[:, t - 1]
         fed[:, t, :3], fed[:, t, 3:] = v, w
         v32, w32 = v.float()[:, None], w.float()[:, None]
         q = None if turn is None else turn.float()[:, None]

@@ -349,12 +349,14 @@ class DynamicsModel(LightningModule):
     def rollout_changes(self, points: torch.Tensor, linear_velocity0: torch.Tensor, angular_velocity0: torch.Tensor,
                         steps: int, warm_linear: torch.Tensor | None = None,
                         warm_angular: torch.Tensor | None = None, spin_inertia: Any = None,
-                        topple: bool = True) -> dict[str, torch.Tensor | None]:
+                        topple: bool = True, warm_turn: Any = None) -> dict[str, torch.Tensor | None]:
         """A whole roll-out in torch, in eval and inference mode: one shape encoding, then ``steps`` calls of
         the network on its own velocities, without numpy between steps (physdyn.models.batch_rollout).
 
         points (B, N, 3) world-oriented body frame of step 0; linear/angular_velocity0 (B, 3) SI; warm_*
-        (B, K, 3): the true velocities of steps 1..K, fed instead of the model's own; spin_inertia (B,) as for
+        (B, K, 3): the true velocities of steps 1..K, fed instead of the model's own, and warm_turn (B, K, 4)
+        optionally the rotations since step 0 at those steps (xyzw), fed instead of the integrated ones to a
+        model fed its orientation (``model.sim_seconds``' simulated start); spin_inertia (B,) as for
         ``encode``; topple=False: the head's probabilities are not wanted (a topple classifier replaces
         them), so ``topple_probability`` is None. Velocities and the
         orientation since step 0 are carried in float64 (as ``physdyn.eval.rollout.rollout`` documents),
@@ -368,21 +370,21 @@ class DynamicsModel(LightningModule):
             with torch.inference_mode():
                 args = (points, linear_velocity0, angular_velocity0, steps, warm_linear, warm_angular, spin_inertia)
                 if len(points) == 1 and SingleRollout.supports(self):
-                    return self._single_rollout(*args, topple=topple)
-                return batch_rollout(self, *args, topple=topple)
+                    return self._single_rollout(*args, topple=topple, warm_turn=warm_turn)
+                return batch_rollout(self, *args, topple=topple, warm_turn=warm_turn)
         finally:
             if was_training:
                 self.train()
 
     def _single_rollout(self, points, linear_velocity0, angular_velocity0, steps, warm_linear, warm_angular,
-                        spin_inertia=None, topple=True):
+                        spin_inertia=None, topple=True, warm_turn=None):
         """One object: the same roll-out on numpy and Python numbers (``physdyn.models.single_rollout``)."""
         feature = self.encode(torch.as_tensor(points, dtype=torch.float32, device=self.device), spin_inertia)
         as64 = lambda x: None if x is None else np.asarray(torch.as_tensor(x).cpu(), np.float64)  # noqa: E731
         warm_v, warm_w = as64(warm_linear), as64(warm_angular)
         out = SingleRollout.of(self).run(feature, as64(linear_velocity0).reshape(3), as64(angular_velocity0).reshape(3),
                                          steps, None if warm_v is None else warm_v[0], None if warm_w is None else warm_w[0],
-                                         topple)
+                                         topple, None if warm_turn is None else as64(warm_turn)[0])
         return {k: None if x is None else torch.from_numpy(x) for k, x in out.items()}
 
     # ------------------------------------------------------------------ training

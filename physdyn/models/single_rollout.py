@@ -167,8 +167,10 @@ class SingleRollout:
         return cls(model)
 
     def run(self, feature: torch.Tensor, v0: np.ndarray, w0: np.ndarray, steps: int,
-            warm_v: np.ndarray | None, warm_w: np.ndarray | None, topple: bool = True) -> dict[str, np.ndarray | None]:
-        """feature (1, F) from ``DynamicsModel.encode``; v0, w0 (3,) float64; warm_* (K, 3) or None ->
+            warm_v: np.ndarray | None, warm_w: np.ndarray | None, topple: bool = True,
+            warm_turn: np.ndarray | None = None) -> dict[str, np.ndarray | None]:
+        """feature (1, F) from ``DynamicsModel.encode``; v0, w0 (3,) float64; warm_* (K, 3) or None (warm_turn
+        (K, 4): the rotations since step 0 at steps 1..K, fed with those velocities) ->
         the arrays of ``rollout_changes`` for one sequence: changes (1, S, 12), fed (1, S, 6), topple (1, S)
         (None with ``topple=False``, when the caller does not use the head's probabilities).
 
@@ -188,6 +190,8 @@ class SingleRollout:
         for t in range(steps):
             if 1 <= t <= K:
                 v, w = [float(x) for x in warm_v[t - 1]], [float(x) for x in warm_w[t - 1]]
+                if warm_turn is not None:
+                    turn = tuple(float(x) for x in warm_turn[t - 1])
             fed[t, :3], fed[t, 3:] = v, w
             vw32 = np.array(v + w, np.float32)  # the module is fed float32
             q32 = np.array(turn, np.float32).tolist() if tracks_turn else None

@@ -314,10 +314,24 @@ def test_sim_seconds_simulates_the_impact_then_the_networks_continue(tiny_checkp
     np.testing.assert_allclose(got.com_position[:, : k + 1], expected["com_position"], atol=1e-9)
     np.testing.assert_allclose(got.linear_velocity[:, : k + 1], expected["linear_velocity"], atol=1e-9)
     np.testing.assert_allclose(np.abs((got.orientation_xyzw[:, : k + 1] * expected["orientation_xyzw"]).sum(-1)), 1.0, atol=1e-9)
-    # after step k: the network's changes, as with those velocities fed as a warm start
-    warm = rollout(plain, points, q0, p0, v0, w0, 20, (expected["linear_velocity"][:, 1:], expected["angular_velocity"][:, 1:]))
-    for key in DELTA_KEYS:
-        np.testing.assert_allclose(getattr(got, key)[:, k:], getattr(warm, key)[:, k:], atol=1e-6, err_msg=key)
+    # after step k: the network's changes, fed the simulated velocities and orientations as a warm start
+    from physdyn.data.windows import relative_rotation
+
+    turns = relative_rotation(q0, expected["orientation_xyzw"][:, 1:])
+    warm = plain.rollout_changes(world_oriented_points(points, q0).astype(np.float32), v0, w0, 20,
+                                 expected["linear_velocity"][:, 1:], expected["angular_velocity"][:, 1:], warm_turn=turns)
+    for i, key in enumerate(DELTA_KEYS):
+        np.testing.assert_allclose(getattr(got, key)[:, k:], warm["changes"][:, k:, 3 * i : 3 * i + 3].numpy(), atol=1e-6, err_msg=key)
+    # fed the integrated orientation instead (the warm start of observed velocities), the networks differ
+    blind = plain.rollout_changes(world_oriented_points(points, q0).astype(np.float32), v0, w0, 20,
+                                  expected["linear_velocity"][:, 1:], expected["angular_velocity"][:, 1:])
+    assert (blind["changes"] - warm["changes"])[:, k:].abs().max() > 1e-6
+    # the reference loop gives the same roll-out, and a horizon within the simulated start ends on its state
+    slow = rollout(hybrid, points, q0, p0, v0, w0, 20, topple_points_body=cloud, body_inertia=inertia, stepwise=True)
+    np.testing.assert_allclose(slow.com_position, got.com_position, atol=1e-6)
+    short = rollout(hybrid, points, q0, p0, v0, w0, 2, topple_points_body=cloud, body_inertia=inertia)
+    np.testing.assert_allclose(short.linear_velocity[:, -1], expected["linear_velocity"][:, 2], atol=1e-9)
+    np.testing.assert_allclose(short.angular_velocity[:, -1], expected["angular_velocity"][:, 2], atol=1e-9)
     again = integrate(p0, q0, v0, w0, got.deltas())  # the states are their changes' sum: one trajectory
     np.testing.assert_allclose(again["com_position"], got.com_position, atol=1e-9)
     # a caller's warm start (observed velocities) takes the place of the simulated start
@@ -326,6 +340,17 @@ def test_sim_seconds_simulates_the_impact_then_the_networks_continue(tiny_checkp
                                rollout(plain, points, q0, p0, v0, w0, 20, observed).com_position, atol=1e-9)
     # through evaluate and the public predictor, and 0 leaves a model as it was
     assert np.isfinite(evaluate(hybrid, store, "test")["headline"]["final_position_m_median"])
+    import trimesh
+
+    from physdyn.predict.predictor import load_predictor
+
+    box = trimesh.creation.box(extents=[0.12, 0.08, 0.06])
+    fast, slow_one = load_predictor(str(path)).predict_many([box, box], lin_vel=[[1.0, 0, 0], [0.6, 0.2, 0]],
+                                                            ang_vel=[[0, 0, 3.0], [0, 0, 0]], seconds=1.0)
+    one = load_predictor(str(path)).predict(box, lin_vel=[1.0, 0, 0], ang_vel=[0, 0, 3.0], seconds=1.0)
+    np.testing.assert_allclose(np.asarray(fast["com_position"]), np.asarray(one["com_position"]), atol=1e-6)
+    moved = np.asarray(one["com_position"])[-1, :2] - np.asarray(one["com_position"])[0, :2]
+    assert 0.05 < np.linalg.norm(moved) < 0.3  # it slides: 1 m/s under mu g stops within 0.2 m
     zero = load_checkpoint(export_checkpoint(path, tmp_path / "zero.ckpt", settings=["model.sim_seconds=0"]))
     np.testing.assert_allclose(rollout(zero, points, q0, p0, v0, w0, 20).com_position,
                                rollout(plain, points, q0, p0, v0, w0, 20).com_position, atol=1e-12)
