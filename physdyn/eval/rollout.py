@@ -203,6 +203,17 @@ def rollout(
         cloud = points if topple_points_body is None else _oriented(_numpy(topple_points_body), q0)
         probability = classifier.predict(cloud, _numpy(lin_vel0).reshape(B, 3), _numpy(ang_vel0).reshape(B, 3), steps,
                                          None if body_inertia is None else _numpy(body_inertia).reshape(B, 3, 3))
+    if simulated is not None and probability is not None:
+        # a push the simulated start has already toppled (the 45 degree rule) has toppled: the returned
+        # poses show it, so the probabilities say it from that step on
+        from physdyn.geometry.rotations import tilt_angle
+        from physdyn.sim.trajectory import TOPPLE_ANGLE
+
+        tilted = tilt_angle(q0[:, None], simulated["orientation_xyzw"]) > TOPPLE_ANGLE  # (B, K + 1)
+        over = np.maximum.accumulate(tilted, axis=1)
+        probability = probability.copy()
+        probability[:, : K + 1] = np.where(over, 1.0, probability[:, : K + 1])
+        probability[:, K + 1 :] = np.where(over[:, -1:], 1.0, probability[:, K + 1 :])
     return RolloutResult(**states, topple_probability=probability, **deltas, fed_linear_velocity=fed_v,
                          fed_angular_velocity=fed_w)
 

@@ -354,3 +354,32 @@ def test_sim_seconds_simulates_the_impact_then_the_networks_continue(tiny_checkp
     zero = load_checkpoint(export_checkpoint(path, tmp_path / "zero.ckpt", settings=["model.sim_seconds=0"]))
     np.testing.assert_allclose(rollout(zero, points, q0, p0, v0, w0, 20).com_position,
                                rollout(plain, points, q0, p0, v0, w0, 20).com_position, atol=1e-12)
+
+
+def test_a_push_the_simulated_start_topples_is_reported_toppled(tiny_checkpoint, tiny_store, store):
+    from physdyn.data.windows import store_world_inertia
+    from physdyn.geometry.rotations import tilt_angle
+    from physdyn.models.topple_classifier import fit_topple_classifier
+
+    model = load_checkpoint(tiny_checkpoint)
+    model.topple_classifier = fit_topple_classifier(store)[0]
+    early = np.flatnonzero(store.toppled.astype(bool) & (store.topple_step >= 1) & (store.topple_step <= 4))
+    calm = np.flatnonzero(~store.toppled.astype(bool))[:4]
+    sims = np.concatenate([early[:4], calm])
+    assert len(early) >= 2
+    truth = gather_truth(store, sims, 12)
+    p0, q0, v0, w0 = _first_states(truth)
+    cloud, points = store.points[store.shape_id[sims]], store.points[store.shape_id[sims]][:, :64]
+    inertia = store_world_inertia(store, sims, q0)
+    plain = rollout(model, points, q0, p0, v0, w0, 12, topple_points_body=cloud, body_inertia=inertia)
+    model.config.model.sim_seconds = 0.4  # 6 steps
+    got = rollout(model, points, q0, p0, v0, w0, 12, topple_points_body=cloud, body_inertia=inertia)
+    tilt = np.degrees(tilt_angle(q0[:, None], got.orientation_xyzw[:, :7]))
+    for b in range(len(sims)):
+        over = np.flatnonzero(tilt[b] > 45)
+        if len(over):  # toppled within the simulated start: certain from that step on, whatever the classifier said
+            assert (got.topple_probability[b, over[0]:] == 1.0).all()
+            np.testing.assert_allclose(got.topple_probability[b, : over[0]], plain.topple_probability[b, : over[0]])
+        else:
+            np.testing.assert_allclose(got.topple_probability[b], plain.topple_probability[b])
+    assert (tilt[: len(early[:4])] > 45).any(axis=1).sum() >= 1  # the early topples do topple in the simulated start
