@@ -28,14 +28,16 @@ quickstart: install
 	@if [ -f runs/quickstart/finished.json ]; then echo "runs/quickstart is trained; kept"; \
 	else physdyn fit --config configs/experiment/quickstart.yaml $$([ -f runs/quickstart/last.ckpt ] && echo --resume); fi
 	physdyn fit-topple --checkpoint runs/quickstart/best.ckpt --out runs/quickstart/best_topple.ckpt --physics --overwrite
-	physdyn test --checkpoint runs/quickstart/best_topple.ckpt --data data/quickstart.zarr --out reports/quickstart --overwrite
+	@# the bundled model's hybrid: the first 0.4 s simulated from the cloud, the rest from the networks
+	$(PYTHON) -m physdyn.models.export runs/quickstart/best_topple.ckpt runs/quickstart/hybrid.ckpt --set model.sim_seconds=0.4 --overwrite
+	physdyn test --checkpoint runs/quickstart/hybrid.ckpt --data data/quickstart.zarr --out reports/quickstart --overwrite
 	physdyn predict examples/meshes/bracket_mm.obj --scale 0.001 --lin-vel 1.2 0 0 --ang-vel 0 0 3 --seconds 4 \
-		--checkpoint runs/quickstart/best_topple.ckpt --compare-sim --out reports/quickstart/bracket.json \
+		--checkpoint runs/quickstart/hybrid.ckpt --compare-sim --out reports/quickstart/bracket.json \
 		--render reports/quickstart/bracket.html --overwrite
 	@echo
 	@echo "results:"
 	@echo "  dataset        data/quickstart.zarr        (physdyn data info data/quickstart.zarr)"
-	@echo "  model          runs/quickstart/best.ckpt, best_topple.ckpt (+ topple classifier; logs: runs/quickstart/csv, tensorboard)"
+	@echo "  model          runs/quickstart/best.ckpt, best_topple.ckpt (+ topple classifier), hybrid.ckpt (+ simulated start; logs: runs/quickstart/csv, tensorboard)"
 	@echo "  test report    reports/quickstart/report.md, metrics.json, *.png, viewer.html (open in a browser)"
 	@echo "  prediction     reports/quickstart/bracket.json, reports/quickstart/bracket.html (open in a browser)"
 	@echo
