@@ -219,9 +219,10 @@ def rollout(
 
 
 def sim_steps(model: Any) -> int:
-    """The steps ``model.sim_seconds`` of a ``DynamicsModel`` spans at its rate (0 for anything else)."""
+    """The steps ``model.sim_seconds`` of a ``DynamicsModel`` spans at its rate, at least one when it is set
+    (0 for anything else)."""
     seconds = float(getattr(getattr(getattr(model, "config", None), "model", None), "sim_seconds", 0.0) or 0.0)
-    return int(round(seconds / float(model.prior_dt))) if seconds > 0 else 0
+    return max(1, int(round(seconds / float(model.prior_dt)))) if seconds > 0 else 0
 
 
 def simulated_start(model: Any, points_body: np.ndarray, q0: np.ndarray, p0: np.ndarray, v0: np.ndarray, w0: np.ndarray,

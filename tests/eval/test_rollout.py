@@ -351,7 +351,12 @@ def test_sim_seconds_simulates_the_impact_then_the_networks_continue(tiny_checkp
     np.testing.assert_allclose(np.asarray(fast["com_position"]), np.asarray(one["com_position"]), atol=1e-6)
     moved = np.asarray(one["com_position"])[-1, :2] - np.asarray(one["com_position"])[0, :2]
     assert 0.05 < np.linalg.norm(moved) < 0.3  # it slides: 1 m/s under mu g stops within 0.2 m
+    from physdyn.eval.rollout import sim_steps
+
+    hybrid.config.model.sim_seconds = 0.01  # less than a recorded step: still one, not silently none
+    assert sim_steps(hybrid) == 1
     zero = load_checkpoint(export_checkpoint(path, tmp_path / "zero.ckpt", settings=["model.sim_seconds=0"]))
+    assert sim_steps(zero) == 0
     np.testing.assert_allclose(rollout(zero, points, q0, p0, v0, w0, 20).com_position,
                                rollout(plain, points, q0, p0, v0, w0, 20).com_position, atol=1e-12)
 
