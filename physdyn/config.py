@@ -420,10 +420,10 @@ class ModelConfig:
     residual_channels: str = "all"
     # Seconds at the start of a roll-out taken from PyBullet run on the point cloud's convex hull (the
     # body's inertia where the caller knows it, the conventions' physics step), rounded to recorded steps
-    # (at least one),
-    # before the networks continue from the simulated state, their recurrent state warmed up on the
-    # simulated velocities. 0: the networks from step 0 (the paper). Acts at inference only (`export
-    # --set`): the impact phase is where the networks missed most (docs/ablations.md, "Simulate the impact").
+    # (at least one), before the networks continue from the simulated state, their recurrent state warmed
+    # up on the simulated velocities and orientations. 0: the networks from step 0 (the paper). Acts at
+    # inference only (`export --set`): the impact phase is where the networks missed most
+    # (docs/ablations.md, "Simulate the impact, learn the rest").
     sim_seconds: float = 0.0
 
 
