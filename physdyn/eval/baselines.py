@@ -24,21 +24,22 @@ from typing import Any
 import numpy as np
 
 from physdyn.errors import CheckpointError, PhysdynError
-from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_rotvec
-from physdyn.eval.rollout import RolloutResult
+from physdyn.eval.rollout import RolloutResult, state_changes
 
 GRAVITY = 9.81
 
 
-def _result(p: np.ndarray, q: np.ndarray, v: np.ndarray, w: np.ndarray) -> RolloutResult:
-    """States (B, T, ...) -> a RolloutResult whose deltas are the state differences."""
+def _result(p: np.ndarray, q: np.ndarray, v: np.ndarray, w: np.ndarray, rotates: bool = False) -> RolloutResult:
+    """States (B, T, ...) -> a RolloutResult whose deltas are the state differences. The rotation's are
+    those of ``state_changes`` for a baseline that turns, exactly zero for one that never does (its axis
+    error is then undefined, "n/a" in reports, not the axis of a rounding residue)."""
     B, T = p.shape[:2]
-    zeros = np.zeros((B, T - 1, 3))
+    changes = state_changes(p, q, v, w)
+    if not rotates:
+        changes["delta_rotation"] = np.zeros((B, T - 1, 3))
     return RolloutResult(
         com_position=p, orientation_xyzw=q, linear_velocity=v, angular_velocity=w,
-        topple_probability=np.zeros((B, T)),
-        delta_linear_velocity=np.diff(v, axis=1), delta_angular_velocity=np.diff(w, axis=1),
-        delta_position=np.diff(p, axis=1), delta_rotation=zeros,
+        topple_probability=np.zeros((B, T)), **changes,
         fed_linear_velocity=v[:, :-1].copy(), fed_angular_velocity=w[:, :-1].copy(),
     )
 
@@ -145,9 +146,8 @@ class CloudSim(Baseline):
         with CloudSimulator(**({} if self.time_step is None else {"time_step": self.time_step})) as sim:
             out = sim.trajectories(points_body, orientation0_xyzw, com_position0, lin_vel0, ang_vel0, friction,
                                    steps, rate_hz, inertia_per_mass)
-        q = out["orientation_xyzw"]
-        result = _result(out["com_position"], q, out["linear_velocity"], out["angular_velocity"])
-        result.delta_rotation = quat_to_rotvec(quat_multiply(q[:, 1:], quat_conjugate(q[:, :-1])))
+        result = _result(out["com_position"], out["orientation_xyzw"], out["linear_velocity"], out["angular_velocity"],
+                         rotates=True)
         result.topple_probability = np.stack([topple_labels(q)[0] for q in out["orientation_xyzw"]]).astype(np.float64)
         return result
 

@@ -17,7 +17,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from physdyn.data.windows import DELTA_KEYS, relative_rotation, world_oriented_points
-from physdyn.geometry.rotations import quat_multiply, rotvec_to_quat
+from physdyn.geometry.rotations import quat_multiply, rotvec_to_quat, world_delta_rotvec
 
 STATE_KEYS = ("com_position", "orientation_xyzw", "linear_velocity", "angular_velocity")
 
@@ -67,6 +67,17 @@ def _numpy(x: Any) -> np.ndarray:
     if hasattr(x, "detach"):
         x = x.detach().cpu().numpy()
     return np.asarray(x, dtype=np.float64)
+
+
+def state_changes(com_position: np.ndarray, orientation_xyzw: np.ndarray, linear_velocity: np.ndarray,
+                  angular_velocity: np.ndarray) -> dict[str, np.ndarray]:
+    """States (B, T, ...) -> their changes ``delta_*`` (B, T-1, 3), the inverse of ``integrate``
+    (``delta_rotation`` world axis-angle: R_{t+1} = Exp(d_t) R_t)."""
+    q = np.asarray(orientation_xyzw, np.float64)
+    return {"delta_linear_velocity": np.diff(linear_velocity, axis=1),
+            "delta_angular_velocity": np.diff(angular_velocity, axis=1),
+            "delta_position": np.diff(com_position, axis=1),
+            "delta_rotation": world_delta_rotvec(q[:, :-1], q[:, 1:])}
 
 
 def integrate(p0: np.ndarray, q0: np.ndarray, v0: np.ndarray, w0: np.ndarray, deltas: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -233,7 +244,7 @@ def simulated_start(model: Any, points_body: np.ndarray, q0: np.ndarray, p0: np.
     states (``delta_rotation`` world axis-angle).
     points_body (B, N, 3) body frame; body_inertia optional (B, 3, 3) I / m in world axes at step 0."""
     from physdyn.config import PhysicsConfig
-    from physdyn.geometry.rotations import quat_conjugate, quat_to_matrix, quat_to_rotvec
+    from physdyn.geometry.rotations import quat_to_matrix
     from physdyn.sim.cloud_body import shared_simulator  # PyBullet: only for models that simulate
 
     q0 = _numpy(q0).reshape(-1, 4)
@@ -247,12 +258,9 @@ def simulated_start(model: Any, points_body: np.ndarray, q0: np.ndarray, p0: np.
     with shared_simulator(PhysicsConfig().time_step) as simulator:
         sim = simulator.trajectories(_numpy(points_body), q0, _numpy(p0).reshape(-1, 3), _numpy(v0).reshape(-1, 3),
                                      _numpy(w0).reshape(-1, 3), float(model.prior_friction), steps, rate, inertia)
-    q = sim["orientation_xyzw"]
-    return {"linear_velocity": sim["linear_velocity"], "angular_velocity": sim["angular_velocity"], "orientation_xyzw": q,
-            "delta_linear_velocity": np.diff(sim["linear_velocity"], axis=1),
-            "delta_angular_velocity": np.diff(sim["angular_velocity"], axis=1),
-            "delta_position": np.diff(sim["com_position"], axis=1),
-            "delta_rotation": quat_to_rotvec(quat_multiply(q[:, 1:], quat_conjugate(q[:, :-1])))}
+    return {"linear_velocity": sim["linear_velocity"], "angular_velocity": sim["angular_velocity"],
+            "orientation_xyzw": sim["orientation_xyzw"],
+            **state_changes(sim["com_position"], sim["orientation_xyzw"], sim["linear_velocity"], sim["angular_velocity"])}
 
 
 def _if_taken(model: Any, spin_inertia: np.ndarray | None) -> np.ndarray | None:
