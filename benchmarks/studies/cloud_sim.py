@@ -19,7 +19,6 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import trimesh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
@@ -27,31 +26,25 @@ from physdyn.config import PhysicsConfig  # noqa: E402
 from physdyn.data.store import load_store  # noqa: E402
 from physdyn.eval.metrics import rotation_angle_deg  # noqa: E402
 from physdyn.predict.simulator import simulate_from_state  # noqa: E402
+from physdyn.data.windows import store_world_inertia  # noqa: E402
 from physdyn.sim.body import RigidBodySpec  # noqa: E402
+from physdyn.sim.cloud_body import cloud_body_spec  # noqa: E402
 from physdyn.sim.trajectory import tilt_angle  # noqa: E402
 
-DENSITY = 1000.0  # kg/m^3: mass cancels from rigid-body motion under Coulomb friction; only its spread matters
-
-
 def cloud_spec(points: np.ndarray, inertia_kind: str = "hull") -> RigidBodySpec:
-    """A body made from a cloud in the body frame: its convex hull, solid at uniform density, with the
-    centre of mass where the cloud's origin is (the model is told that point)."""
-    hull = trimesh.convex.convex_hull(np.asarray(points, np.float64))
-    mass = DENSITY * hull.volume
-    d = np.asarray(hull.center_mass)
-    inertia = DENSITY * np.asarray(hull.moment_inertia) + mass * (d @ d * np.eye(3) - np.outer(d, d))
-    if inertia_kind.startswith("hull") and inertia_kind != "hull":
-        inertia = float(inertia_kind[4:]) * inertia
-    elif inertia_kind != "hull":  # the cloud's own second moments, as a shell (x factor) of the hull's mass
-        factor = {"shell": 1.0, "shell08": 0.8}[inertia_kind]
+    """``cloud_body_spec`` (the package's body from a cloud: its hull, the hull's inertia about the cloud's
+    origin), with the inertia variants this study compared: ``hullF`` F x the hull's, ``shell``/``shell08``
+    the cloud's own second moments as a thin shell (x 0.8)."""
+    spec = cloud_body_spec(points)
+    if inertia_kind == "hull":
+        return spec
+    if inertia_kind.startswith("hull"):
+        per_mass = float(inertia_kind[4:]) * (spec.principal_axes * spec.inertia_diag) @ spec.principal_axes.T / spec.mass
+    else:
         c = np.asarray(points, np.float64)
         second = c.T @ c / len(c)
-        inertia = factor * mass * (np.trace(second) * np.eye(3) - second)
-    moments, axes = np.linalg.eigh(inertia)
-    if np.linalg.det(axes) < 0:
-        axes[:, 2] *= -1
-    return RigidBodySpec(mass=float(mass), inertia_diag=moments, principal_axes=axes, com_mesh=np.zeros(3),
-                         hull_vertices=hull.vertices @ axes)
+        per_mass = {"shell": 1.0, "shell08": 0.8}[inertia_kind] * (np.trace(second) * np.eye(3) - second)
+    return cloud_body_spec(points, per_mass)
 
 
 def main() -> None:
@@ -82,12 +75,9 @@ def main() -> None:
         s = int(store.shape_id[m])
         if s not in specs:
             spec = cloud_spec(args.scale * store.points[s][: args.points], args.inertia)
-            if args.true_body:
-                from physdyn.geometry.rotations import quat_to_matrix
-                axes = quat_to_matrix(store.inertia_orientation_xyzw[s])
-                hull = trimesh.convex.convex_hull(np.asarray(store.points[s][: args.points], np.float64))
-                spec = RigidBodySpec(mass=float(store.mass[s]), inertia_diag=store.inertia_diag[s].astype(float),
-                                     principal_axes=axes, com_mesh=np.zeros(3), hull_vertices=hull.vertices @ axes)
+            if args.true_body:  # the store's inertia, as physdyn test hands it to CloudSimulator
+                inertia = store_world_inertia(store, np.flatnonzero(store.shape_id == s)[:1], np.array([[0.0, 0.0, 0.0, 1.0]]))
+                spec = cloud_body_spec(args.scale * store.points[s][: args.points], inertia[0])
             specs[s] = spec
         fr = store.frames(int(m))
         T = fr.stop - fr.start
