@@ -86,6 +86,21 @@ def collect_meshes(folder: Path, random_count: int, random_from: int = 0, named:
     return applied
 
 
+def external_store(work: Path, random_count: int, pushes: int, random_from: int = 0, no_named: bool = False):
+    """The simulated store of these meshes under ``work`` (made on first use; ``pushes`` per mesh)."""
+    which = f"external_{random_count}x{pushes}" + (f"_from{random_from}" if random_from else "") + ("_unnamed" if no_named else "")
+    store_path = work / f"{which}.zarr"
+    try:
+        return load_store(str(store_path))
+    except PhysdynError:  # not made yet, or an interrupted run: make it afresh (it is this script's own)
+        # another set of meshes gets a folder of its own (a folder is simulated whole)
+        meshes = work / ("meshes" if not (random_from or no_named) else f"{which}_meshes")
+        collect_meshes(meshes, random_count, random_from, not no_named)
+        cfg = load_config(DataConfig, None, [f"families.meshes.sims_per_shape={pushes}", f"meshes.dir={meshes}"])
+        generate_dataset(cfg, str(store_path), workers=2, progress=False, overwrite=True)
+        return load_store(str(store_path))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--checkpoint", default=None, help="default: the bundled model")
@@ -101,17 +116,7 @@ def main() -> None:
                              "baseline of `physdyn test --cloud-sim`)")
     args = parser.parse_args()
     work = Path(args.work)
-    which = f"external_{args.random}x{args.pushes}" + (f"_from{args.random_from}" if args.random_from else "") + ("_unnamed" if args.no_named else "")
-    store_path = work / f"{which}.zarr"
-    try:
-        store = load_store(str(store_path))
-    except PhysdynError:  # not made yet, or an interrupted run: make it afresh (it is this script's own)
-        # another set of meshes gets a folder of its own (a folder is simulated whole)
-        meshes = work / ("meshes" if not (args.random_from or args.no_named) else f"{which}_meshes")
-        collect_meshes(meshes, args.random, args.random_from, not args.no_named)
-        cfg = load_config(DataConfig, None, [f"families.meshes.sims_per_shape={args.pushes}", f"meshes.dir={meshes}"])
-        generate_dataset(cfg, str(store_path), workers=2, progress=False, overwrite=True)
-        store = load_store(str(store_path))
+    store = external_store(work, args.random, args.pushes, args.random_from, args.no_named)
     predictor = load_predictor(args.checkpoint)
     rate = predictor.rate_hz
     if abs(rate - store.rate_hz) > 1e-9:

@@ -106,6 +106,9 @@ class DataConfig:
     rate_hz: float = 15.0
     num_points: int = 1024
     oversample: int = 3
+    # surface: the paper's (3x oversampling + farthest points); hull_surface: the convex hull's vertices, then
+    # surface samples (physdyn/geometry/sampling.py: the cloud's hull is the mesh's, so contact is not lost)
+    points_method: str = "surface"
     families: Dict[str, FamilySpec] = field(default_factory=dict)
     meshes: MeshFolderConfig = field(default_factory=MeshFolderConfig)
     physics: PhysicsConfig = field(default_factory=PhysicsConfig)
@@ -174,6 +177,8 @@ def _data_relations(cfg: "DataConfig") -> tuple[str, str] | None:
         return ("friction.min", f"{cfg.friction.min:g} is above friction.max {cfg.friction.max:g}")
     if cfg.split.test_fraction + cfg.split.val_fraction >= 1.0:
         return ("split.val_fraction", "test_fraction + val_fraction must leave shapes to train on (sum below 1)")
+    if cfg.points_method not in ("surface", "hull_surface"):
+        return ("points_method", f"'{cfg.points_method}' is not a points method; use surface or hull_surface")
     return None
 
 

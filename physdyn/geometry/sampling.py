@@ -1,4 +1,14 @@
-"""Surface point clouds: oversample the surface, then keep well-spread points by farthest-point sampling."""
+"""Point clouds of a shape, in two representations (``POINTS_METHODS``):
+
+- ``surface``: the paper's — oversample the surface, keep well-spread points by farthest-point sampling.
+  Uniform samples miss the hull's corners, and contact with the ground depends only on the hull: PyBullet
+  itself, run on the hull of 256 such points, misses the true rotation by 27-29 deg (issue #26).
+- ``hull_surface``: every vertex of the mesh's convex hull first (thinned by farthest-point sampling only
+  when there are more than ``num_points``), then uniform surface samples fill
+  the rest. The set's hull is the mesh's hull whenever it has at most ``num_points`` vertices, so what
+  decides contact reaches the model intact (docs/ablations.md, "An input that keeps the contact geometry").
+  No farthest-point pass over the fill: it costs milliseconds per mesh at prediction time.
+"""
 
 from __future__ import annotations
 
@@ -31,7 +41,36 @@ def farthest_point_sample(points: np.ndarray, count: int) -> np.ndarray:
     return np.asarray(cloud.farthest_point_down_sample(count).points, dtype=np.float32)
 
 
+POINTS_METHODS = ("surface", "hull_surface")
+
+
 def sample_surface_points(mesh: trimesh.Trimesh, num_points: int = 1024, oversample: int = 3, seed: int = 0) -> np.ndarray:
     """(num_points, 3) float32 surface points in mesh coordinates, as the paper samples them (3x + FPS)."""
     candidates, _ = trimesh.sample.sample_surface(mesh, num_points * max(oversample, 1), seed=seed)
     return farthest_point_sample(candidates, num_points)
+
+
+def hull_surface_points(mesh: trimesh.Trimesh, num_points: int, seed: int = 0,
+                        hull_vertices: np.ndarray | None = None) -> np.ndarray:
+    """(num_points, 3) float32 in mesh coordinates: the convex hull's vertices (``hull_vertices`` (H, 3) if
+    the caller has them, else computed; farthest-point thinned from the lowest when H > num_points), then
+    uniform surface samples."""
+    hull = np.asarray(mesh.convex_hull.vertices if hull_vertices is None else hull_vertices, dtype=np.float64)
+    # Start from the lowest vertex (deterministic whatever qhull's order) so the first points span the base.
+    hull = np.roll(hull, -int(np.argmin(hull[:, 2])), axis=0)
+    kept = farthest_point_sample(hull, min(len(hull), num_points)) if len(hull) > 1 else hull.astype(np.float32)
+    fill = num_points - len(kept)
+    if fill <= 0:
+        return np.ascontiguousarray(kept[:num_points], dtype=np.float32)
+    samples, _ = trimesh.sample.sample_surface(mesh, fill, seed=seed)
+    return np.concatenate([kept, np.asarray(samples, dtype=np.float32)])
+
+
+def shape_points(mesh: trimesh.Trimesh, num_points: int, method: str = "surface", oversample: int = 3, seed: int = 0,
+                 hull_vertices: np.ndarray | None = None) -> np.ndarray:
+    """(num_points, 3) float32 mesh-coordinate points of ``mesh`` in the representation ``method``."""
+    if method == "surface":
+        return sample_surface_points(mesh, num_points, oversample, seed)
+    if method == "hull_surface":
+        return hull_surface_points(mesh, num_points, seed, hull_vertices)
+    raise PhysdynError(f"points method '{method}' is unknown; use one of {', '.join(POINTS_METHODS)}")

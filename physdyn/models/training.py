@@ -139,6 +139,8 @@ def fit(config: ExperimentConfig, resume: bool = False, overwrite: bool = False,
         "rate_hz": datamodule.rate_hz,
         "window": cfg.data.window,
         "num_points": cfg.data.num_points,
+        # how the store's clouds were made: predict must make a new mesh's cloud the same way
+        "points_method": str(datamodule.store.attrs.get("config", {}).get("points_method", "surface")),
         "category_names": list(datamodule.store.category_names),
         "train_sims": int(len(datamodule.sims.train)),
         # for model.prior: the training data's friction (median: a random-friction store has many) and gravity

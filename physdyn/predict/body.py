@@ -30,14 +30,15 @@ class PreparedBody:
     name: str
     notes: list[str] = field(default_factory=list)
     scale: float = 1.0  # applied to the file's coordinates to get metres
-    _points: dict[int, np.ndarray] = field(default_factory=dict, repr=False)
+    _points: dict[tuple[int, str], np.ndarray] = field(default_factory=dict, repr=False)
 
-    def points_body(self, num_points: int) -> np.ndarray:
-        """(num_points, 3) float32 surface points in the body frame (mesh axes, origin at the com)."""
-        if num_points not in self._points:
-            self._points[num_points] = body_surface_points(self.mesh, self.spec, num_points, DataConfig().oversample,
-                                                           POINTS_SEED)
-        return self._points[num_points]
+    def points_body(self, num_points: int, method: str = "surface") -> np.ndarray:
+        """(num_points, 3) float32 points in the body frame (mesh axes, origin at the com), in the
+        representation ``method`` the model was trained on (geometry/sampling.py)."""
+        if (num_points, method) not in self._points:
+            self._points[num_points, method] = body_surface_points(self.mesh, self.spec, num_points,
+                                                                   DataConfig().oversample, POINTS_SEED, method)
+        return self._points[num_points, method]
 
 
 def prepare_body(mesh: Any, scale: float = 1.0, density: float | None = None) -> PreparedBody:

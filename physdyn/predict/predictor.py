@@ -137,6 +137,11 @@ class Predictor:
     def num_points(self) -> int:
         return int(getattr(self.model, "num_points", None) or self.model.data_info.get("num_points") or DEFAULT_NUM_POINTS)
 
+    @property
+    def points_method(self) -> str:
+        """The point representation the model was trained on (its store's ``points_method``)."""
+        return str(self.model.data_info.get("points_method") or "surface")
+
     def num_steps(self, seconds: float) -> int:
         """T = round(seconds * rate_hz) + 1 (step 0 included)."""
         return int(round(check_seconds(seconds) * self.rate_hz)) + 1
@@ -204,7 +209,7 @@ class Predictor:
         p0 = np.stack([posed[id(body), q.tobytes()][0] for body, q in zip(bodies, q0)])
         spin_inertia = np.array([posed[id(body), q.tobytes()][1] for body, q in zip(bodies, q0)])
         body_inertia = np.stack([posed[id(body), q.tobytes()][2] for body, q in zip(bodies, q0)])
-        points = np.stack([body.points_body(self.num_points) for body in bodies])
+        points = np.stack([body.points_body(self.num_points, self.points_method) for body in bodies])
         classifier = getattr(self.model, "topple_classifier", None)
         dense = None if classifier is None else classifier.num_points  # the cloud its simulations read
         topple_points = None if classifier is None and not sim_steps(self.model) else np.stack(

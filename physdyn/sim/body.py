@@ -15,7 +15,7 @@ import trimesh
 from physdyn.geometry.mass import MassProperties, solid_mass_properties
 from physdyn.geometry.mesh_io import prepare_mesh
 from physdyn.geometry.rotations import matrix_to_quat
-from physdyn.geometry.sampling import sample_surface_points
+from physdyn.geometry.sampling import shape_points
 
 
 @dataclass
@@ -68,15 +68,16 @@ class RigidBody:
     watertight: bool
     notes: list[str] = field(default_factory=list)
 
-    def surface_points(self, num_points: int, oversample: int, seed: int) -> np.ndarray:
-        return body_surface_points(self.mesh, self.spec, num_points, oversample, seed)
+    def surface_points(self, num_points: int, oversample: int, seed: int, method: str = "surface") -> np.ndarray:
+        return body_surface_points(self.mesh, self.spec, num_points, oversample, seed, method)
 
 
 def body_surface_points(mesh: trimesh.Trimesh, spec: RigidBodySpec, num_points: int, oversample: int,
-                        seed: int) -> np.ndarray:
-    """(num_points, 3) float32 surface points of ``mesh`` in the body frame (mesh axes, origin at the centre
-    of mass), as the stores hold them."""
-    points = sample_surface_points(mesh, num_points, oversample, seed=seed)
+                        seed: int, method: str = "surface") -> np.ndarray:
+    """(num_points, 3) float32 points of ``mesh`` in the body frame (mesh axes, origin at the centre of
+    mass), as the stores hold them, in the representation ``method`` (geometry/sampling.py)."""
+    hull = spec.body_vertices() + spec.com_mesh  # the hull the simulator collides with, already computed
+    points = shape_points(mesh, num_points, method, oversample, seed, hull_vertices=hull)
     return (points - spec.com_mesh).astype(np.float32)
 
 

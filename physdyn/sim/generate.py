@@ -187,7 +187,7 @@ def prepare_shape(cfg: DataConfig, family, task: ShapeTask) -> dict:
     return dict(
         task=task, instance=instance, spec=body.spec, props=props, exact=exact, notes=body.notes,
         rotations=rotations, probabilities=probabilities, hull_mass=not body.watertight,
-        points=body.surface_points(cfg.num_points, cfg.oversample, int(points_ss.generate_state(1)[0])),
+        points=body.surface_points(cfg.num_points, cfg.oversample, int(points_ss.generate_state(1)[0]), cfg.points_method),
         sims_rng=np.random.default_rng(sims_ss),
     )
 
