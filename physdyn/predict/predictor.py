@@ -170,8 +170,8 @@ class Predictor:
 
         meshes: R file paths, ``trimesh.Trimesh`` or ``PreparedBody`` (a mesh named twice is prepared once);
         lin_vel, ang_vel: (R, 3), or (3,) for every request; seconds, scale, compare_sim: one value or R;
-        orientation_xyzw: None (each mesh as it is), (4,) or (R, 4). Requests are grouped by length and
-        rolled out ``chunk_size`` at a time, which bounds memory. Results equal per-request ``predict`` up
+        orientation_xyzw: None (each mesh as it is), (4,) or (R, 4). Requests of different lengths share a
+        roll-out, padded to the longest and cut to their own length; ``chunk_size`` at a time bounds memory. Results equal per-request ``predict`` up
         to float32 round-off of batched arithmetic.
         """
 
@@ -215,21 +215,25 @@ class Predictor:
         topple_points = None if classifier is None and not sim_steps(self.model) else np.stack(
             [body.points_body(dense or DEFAULT_NUM_POINTS) for body in bodies])
         results: list[dict[str, Any] | None] = [None] * R
-        for T in sorted(set(steps)):
-            same = np.flatnonzero(np.asarray(steps) == T)
-            for lo in range(0, len(same), int(chunk_size)):
-                idx = same[lo : lo + int(chunk_size)]
-                rolled = rollout(self.model, points[idx], q0[idx], p0[idx], v0[idx], w0[idx], T - 1,
-                                 topple_points_body=None if topple_points is None else topple_points[idx],
-                                 spin_inertia=spin_inertia[idx], body_inertia=body_inertia[idx])
-                for b, r in enumerate(idx):
-                    out = rolled.sequence(b)
-                    probability = out["topple_probability"]
-                    if probability is not None:
-                        toppled = bool(np.any(probability >= TOPPLE_THRESHOLD))
-                    else:  # no topple head: the 45 degree rule on the predicted orientations
-                        toppled = bool(topple_labels(out["orientation_xyzw"])[1] >= 0)
-                    results[r] = self._result(out, probability, toppled, bodies[r], self.name)
+        # Longest first, then one roll-out per chunk at the chunk's longest length: a roll-out is causal (each
+        # step reads only earlier ones), so a shorter request's steps are exactly its own roll-out's and the
+        # steps past its end are cut off. One roll-out per length cost 18 roll-outs for 60 requests.
+        order = np.argsort(-np.asarray(steps), kind="stable")
+        for lo in range(0, R, int(chunk_size)):
+            idx = order[lo : lo + int(chunk_size)]
+            longest = max(steps[r] for r in idx)
+            rolled = rollout(self.model, points[idx], q0[idx], p0[idx], v0[idx], w0[idx], longest - 1,
+                             topple_points_body=None if topple_points is None else topple_points[idx],
+                             spin_inertia=spin_inertia[idx], body_inertia=body_inertia[idx])
+            for b, r in enumerate(idx):
+                T = steps[r]
+                out = {k: None if v is None else v[:T] for k, v in rolled.sequence(b).items()}
+                probability = out["topple_probability"]
+                if probability is not None:
+                    toppled = bool(np.any(probability >= TOPPLE_THRESHOLD))
+                else:  # no topple head: the 45 degree rule on the predicted orientations
+                    toppled = bool(topple_labels(out["orientation_xyzw"])[1] >= 0)
+                results[r] = self._result(out, probability, toppled, bodies[r], self.name)
         for r in np.flatnonzero(compare):
             sim = simulate_from_state(bodies[r].spec, q0[r], v0[r], w0[r], self.rate_hz, steps[r], self.physics)
             results[r]["simulated"] = self._result(sim, sim["topple_label"].astype(np.float64),

@@ -277,7 +277,7 @@ def test_predict_many_equals_each_request_predicted_alone_in_any_chunking(checkp
     files = [str(meshes / ("box.obj" if i % 2 else "can.stl")) for i in range(R)]
     lin = np.c_[rng.uniform(-1.5, 1.5, (R, 2)), np.zeros(R)]
     ang = np.c_[np.zeros((R, 2)), rng.uniform(-3, 3, R)]
-    seconds = [1.0, 2.0, 1.0, 1.0, 2.0]  # two lengths: rolled out as two groups
+    seconds = [1.0, 2.0, 1.0, 1.0, 2.0]  # two lengths: one roll-out padded to the longer, cut per request
     alone = [predictor.predict(f, lin[i], ang[i], seconds[i]) for i, f in enumerate(files)]
     for chunk in (R, 2, 1):
         many = predictor.predict_many(files, lin, ang, seconds, chunk_size=chunk)
@@ -291,6 +291,21 @@ def test_predict_many_equals_each_request_predicted_alone_in_any_chunking(checkp
     with pytest.raises(PredictionError, match="compare_sim must be true or false"):
         predictor.predict_many(files[:1], lin[:1], ang[:1], 1.0, compare_sim="no")
     assert predictor.predict_many([], np.zeros((0, 3)), np.zeros((0, 3))) == []
+
+
+def test_padded_batch_of_the_bundled_hybrid_equals_each_request_alone(meshes):
+    """The bundled model simulates its first 0.4 s: a request shorter than that, padded into a batch with a
+    longer one, still gets exactly its own roll-out (states, topple probabilities and verdict)."""
+    predictor = load_predictor()
+    files = [str(meshes / "box.obj"), str(meshes / "can.stl")]
+    lin, ang, seconds = np.array([[1.2, 0.0, 0.0], [0.0, 0.8, 0.0]]), np.array([[0.0, 0.0, 2.0], [0.0, 0.0, -1.0]]), [0.2, 1.5]
+    many = predictor.predict_many(files, lin, ang, seconds)
+    for i, got in enumerate(many):
+        alone = predictor.predict(files[i], lin[i], ang[i], seconds[i])
+        assert len(got["time"]) == len(alone["time"]) == round(seconds[i] * predictor.rate_hz) + 1
+        assert got["toppled"] == alone["toppled"]
+        for key in ("com_position", "orientation_xyzw", "linear_velocity", "angular_velocity", "topple_probability"):
+            np.testing.assert_allclose(got[key], alone[key], rtol=1e-5, atol=1e-5, err_msg=key)
 
 
 def _cli(*args: str, capsys) -> tuple[int, str, str]:
