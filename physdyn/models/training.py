@@ -138,7 +138,7 @@ def fit(config: ExperimentConfig, resume: bool = False, overwrite: bool = False,
         "store": str(cfg.data.store),
         "rate_hz": datamodule.rate_hz,
         "window": cfg.data.window,
-        "num_points": cfg.data.num_points,
+        "num_points": cfg.data.num_points or int(datamodule.store.points.shape[1]),  # what the model sees
         # how the store's clouds were made: predict must make a new mesh's cloud the same way
         "points_method": str(datamodule.store.attrs.get("config", {}).get("points_method", "surface")),
         "category_names": list(datamodule.store.category_names),
