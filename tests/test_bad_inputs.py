@@ -1,4 +1,5 @@
 """Bad input across every command: exit status 2, one clear line naming the problem, nothing damaged.
+Files crafted to run code when unpickled are refused by every command that reads them, and run nothing.
 
 One table, run in-process through ``physdyn.cli.main`` (a fresh process per case would cost minutes).
 Each case runs in a workspace holding what a user already made — a finished store, a finished run, a report,
@@ -10,7 +11,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+import pickle
 import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -24,9 +27,46 @@ from tests.models.conftest import QUICKSTART, shrunk_overrides
 DATA = "configs/data/quickstart.yaml"
 
 
+class RunsCode:
+    """Unpickling this calls ``Path.touch(marker)``: a file appearing there means a reader ran code from a file."""
+
+    def __init__(self, marker: Path):
+        self.marker = marker
+
+    def __reduce__(self):
+        return (Path.touch, (self.marker,))
+
+
 @pytest.fixture(scope="module")
-def workspace(tiny_store, tmp_path_factory):
-    """What a user already has: a store, a finished run, a report, a prediction, their own files."""
+def marker(tmp_path_factory) -> Path:
+    """Where the planted files' code would create a file, outside the workspace."""
+    return tmp_path_factory.mktemp("payload") / "code_ran"
+
+
+def plant_code_carrying_files(ws: Path, marker: Path) -> None:
+    """Files that look like physdyn's own but carry ``RunsCode``: a checkpoint, a run folder whose last.ckpt is
+    that checkpoint, an encoder file, a prediction file, and a store with an array of pickled Python objects."""
+    payload = RunsCode(marker)
+    checkpoint = torch.load(ws / "run" / "last.ckpt", map_location="cpu", weights_only=True)
+    torch.save({**checkpoint, "notes": payload}, ws / "code.ckpt")
+    shutil.copytree(ws / "run", ws / "code_run")
+    shutil.copyfile(ws / "code.ckpt", ws / "code_run" / "last.ckpt")
+    torch.save({"encoder": "pointnet", "state_dict": {}, "classes": ["mugs"], "notes": payload}, ws / "code_encoder.pt")
+    np.savez(ws / "code.npz", com_position=np.array([payload], dtype=object))
+    shutil.copytree(ws / "store.zarr", ws / "code.zarr")
+    pickled = [{"name": "numcodecs.pickle", "configuration": {"protocol": 2}}]
+    root = json.loads((ws / "code.zarr" / "zarr.json").read_text())
+    root["consolidated_metadata"]["metadata"]["sims/friction"]["codecs"] = pickled
+    (ws / "code.zarr" / "zarr.json").write_text(json.dumps(root))
+    array = ws / "code.zarr" / "sims" / "friction"
+    (array / "zarr.json").write_text(json.dumps({**json.loads((array / "zarr.json").read_text()), "codecs": pickled}))
+    (array / "c" / "0").write_bytes(pickle.dumps(payload, protocol=2))
+
+
+@pytest.fixture(scope="module")
+def workspace(tiny_store, tmp_path_factory, marker):
+    """What a user already has: a store, a finished run, a report, a prediction, their own files; and files
+    from elsewhere that carry code."""
     from physdyn.models.training import fit, load_experiment_config
 
     ws = tmp_path_factory.mktemp("workspace")
@@ -52,6 +92,7 @@ def workspace(tiny_store, tmp_path_factory):
     (ws / "requests.jsonl").write_text(json.dumps({"mesh": "box.obj", "lin_vel": [1, 0, 0], "ang_vel": [0, 0, 1]}) + "\n")
     (ws / "trials").mkdir()
     (ws / "trials" / "t1.csv").write_text("when,where\n0,1\n")  # not the tracker layout
+    plant_code_carrying_files(ws, marker)
     return ws
 
 
@@ -266,3 +307,67 @@ def test_an_unexpected_error_is_one_line_pointing_to_debug_which_shows_the_trace
     assert len(err) == 1 and "unexpected error: KeyError" in err[0] and "--debug" in err[0], err
     with pytest.raises(KeyError):
         main(["--debug", *argv])
+
+
+# Files that carry code (see plant_code_carrying_files), given to every command that reads such a file:
+# (id, argv, the planted file the line names, text the line must contain). "export" is
+# `python -m physdyn.models.export`.
+REFUSED = "that physdyn does not load (files are read without running code; docs/security.md)"
+CODE_CASES = [
+    ("predict", [*PREDICT[:-1], "{ws}/code.ckpt"], "code.ckpt", REFUSED),
+    ("test", ["test", "--checkpoint", "{ws}/code.ckpt", "--data", "{ws}/store.zarr", "--out", "{ws}/rep"], "code.ckpt", REFUSED),
+    ("test-baseline-checkpoint", [*TEST, "--out", "{ws}/rep", "--baseline-checkpoint", "{ws}/code.ckpt"], "code.ckpt", REFUSED),
+    ("fit-resume", ["fit", "--config", str(QUICKSTART), *shrunk_overrides("{ws}/store.zarr", "{ws}/code_run", "trainer.max_steps=4"),
+                    "--resume"], "code_run/last.ckpt", REFUSED),
+    ("fit-ckpt-path", ["fit", "--config", str(QUICKSTART), *RUN_OVERRIDES, "ckpt_path={ws}/code.ckpt"], "code.ckpt", REFUSED),
+    ("fit-encoder-init", ["fit", "--config", str(QUICKSTART), *RUN_OVERRIDES, "model.encoder_init={ws}/code_encoder.pt"],
+     "code_encoder.pt", REFUSED),
+    ("fit-topple", ["fit-topple", "--checkpoint", "{ws}/code.ckpt", "--out", "{ws}/t.ckpt"], "code.ckpt", REFUSED),
+    ("view-checkpoint", ["view", "--checkpoint", "{ws}/code.ckpt", "--data", "{ws}/store.zarr", "--sims", "0", "--out", "{ws}/v.html"],
+     "code.ckpt", REFUSED),
+    ("view-prediction", ["view", "{ws}/code.npz", "--out", "{ws}/v.html"], "code.npz", "holds Python objects " + REFUSED),
+    ("export", ["export", "{ws}/code.ckpt", "{ws}/e.ckpt"], "code.ckpt", REFUSED),
+    ("export-linear-from", ["export", "{ws}/run/last.ckpt", "{ws}/e.ckpt", "--linear-from", "{ws}/code.ckpt"], "code.ckpt", REFUSED),
+    ("store-test", ["test", "--checkpoint", "{ws}/run/last.ckpt", "--data", "{ws}/code.zarr", "--out", "{ws}/rep"], "code.zarr",
+     "Unknown codec: 'numcodecs.pickle'"),
+    ("store-fit", ["fit", "--config", str(QUICKSTART), "data.store={ws}/code.zarr", "out_dir={ws}/new_run"], "code.zarr",
+     "Unknown codec: 'numcodecs.pickle'"),
+    ("store-info", ["data", "info", "{ws}/code.zarr"], "code.zarr", "Unknown codec: 'numcodecs.pickle'"),
+]
+
+
+def test_the_planted_files_do_run_code_when_unpickled(workspace, marker):
+    # Otherwise the test below would prove nothing.
+    for load in (lambda: torch.load(workspace / "code.ckpt", weights_only=False),
+                 lambda: torch.load(workspace / "code_encoder.pt", weights_only=False),
+                 lambda: np.load(workspace / "code.npz", allow_pickle=True)["com_position"],
+                 lambda: pickle.loads((workspace / "code.zarr" / "sims" / "friction" / "c" / "0").read_bytes())):
+        load()
+        assert marker.exists()
+        marker.unlink()
+
+
+@pytest.mark.parametrize("argv, named, expected", [pytest.param(a, n, e, id=i) for i, a, n, e in CODE_CASES])
+def test_a_file_that_carries_code_runs_nothing_and_is_refused_in_one_line(workspace, marker, capsys, monkeypatch,
+                                                                         argv, named, expected):
+    args = [a.replace("{ws}", str(workspace)) for a in argv]
+    before = digest(workspace)
+    capsys.readouterr()
+    if args[0] == "export":
+        from physdyn.models import export
+
+        monkeypatch.setattr(sys, "argv", ["export", *args[1:]])
+        with pytest.raises(SystemExit) as exited:
+            export.main()
+        status = exited.value.code
+    else:
+        status = main(args)
+    err = capsys.readouterr().err.strip()
+    ran = marker.exists()
+    marker.unlink(missing_ok=True)  # so that one failure does not fail the cases after it
+    assert not ran, "the file's code ran"
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert status == 2 and len(lines) == 1, f"exit {status}: {err}"
+    assert str(workspace / named) in lines[0] and expected in lines[0], lines[0]
+    assert "not a PyTorch checkpoint" not in lines[0] and "not a physdyn DynamicsModel checkpoint" not in lines[0], lines[0]
+    assert digest(workspace) == before, "the workspace changed"

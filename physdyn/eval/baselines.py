@@ -161,9 +161,13 @@ def load_checkpoint(path: str | Path):
     from physdyn.models.dynamics_module import DynamicsModel  # and Lightning
 
     path = Path(path)
-    read_checkpoint(path)  # a one-line error for a missing, unreadable or foreign file
+    raw = read_checkpoint(path)  # a one-line error for a missing, unreadable, foreign or code-carrying file
     try:
-        model = DynamicsModel.load_from_checkpoint(path, map_location="cpu")
+        # Built as Lightning's load_from_checkpoint builds it, but from the dict read without running code:
+        # that one reads the file again, and before Lightning 2.6 with weights_only=False.
+        model = DynamicsModel(**raw["hyper_parameters"])
+        model.on_load_checkpoint(raw)
+        model.load_state_dict(raw["state_dict"])
     except PhysdynError:
         raise
     except Exception as exc:

@@ -21,8 +21,9 @@ from lightning import LightningModule
 from physdyn.config import ExperimentConfig, config_from_dict, to_dict
 from physdyn.data.normalization import Normalization
 from physdyn.data.windows import DELTA_KEYS
-from physdyn.errors import ConfigError
+from physdyn.errors import CheckpointError, ConfigError
 from physdyn.models.batch_rollout import LINEAR, batch_rollout
+from physdyn.models.checkpoint_file import read_torch_file
 from physdyn.models.losses import dynamics_loss
 from physdyn.models.optimizer import adam_with_schedule
 from physdyn.models.priors import RESIDUAL_MASKS, SHAPE_PRIORS, contact_changes, contact_geometry, prior_changes
@@ -488,9 +489,9 @@ class DynamicsModel(LightningModule):
         if not path.is_file():
             raise ConfigError(f"config key 'model.encoder_init': no file {path}; run `physdyn pretrain` first")
         try:
-            saved = torch.load(path, map_location="cpu", weights_only=False)
-        except Exception:
-            raise ConfigError(f"config key 'model.encoder_init': {path} is not an encoder file of `physdyn pretrain`") from None
+            saved = read_torch_file(path, "an encoder.pt written by `physdyn pretrain`")
+        except CheckpointError as exc:
+            raise ConfigError(f"config key 'model.encoder_init': {exc}") from None
         name = saved.get("encoder") if isinstance(saved, dict) else None
         if name != self.config.model.encoder.name:
             raise ConfigError(

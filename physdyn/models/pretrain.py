@@ -28,6 +28,7 @@ from torch.utils.data import DataLoader, TensorDataset
 from physdyn.config import OptimConfig, PretrainConfig, PretrainDataConfig, load_config, to_dict
 from physdyn.errors import ConfigError, ShapeError
 from physdyn.geometry.sampling import sample_surface_points
+from physdyn.models.checkpoint_file import read_torch_file
 from physdyn.models.optimizer import adam_with_schedule
 from physdyn.models.run_directory import FINISHED, prepare_run_directory, run_directory, save_config_yaml
 from physdyn.models.trainer_setup import build_trainer, ignore_lightning_noise, validate_trainer_args
@@ -223,7 +224,7 @@ def pretrain(config: PretrainConfig, overwrite: bool = False) -> PretrainResult:
         ignore_lightning_noise()
         trainer.fit(model, train_loader, val_loader)
     if checkpoint.best_model_path:
-        best = torch.load(checkpoint.best_model_path, map_location="cpu", weights_only=False)
+        best = read_torch_file(checkpoint.best_model_path, "the best.ckpt this run wrote")
         model.load_state_dict(best["state_dict"])
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items() if torch.is_tensor(v) and v.numel() == 1}
     encoder_path = out_dir / "encoder.pt"

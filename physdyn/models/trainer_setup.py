@@ -17,8 +17,10 @@ from lightning.pytorch.callbacks import ProgressBar, TQDMProgressBar
 from lightning.pytorch.loggers import CSVLogger, TensorBoardLogger
 from lightning.pytorch.loggers.csv_logs import ExperimentWriter
 from lightning.pytorch.loggers.logger import rank_zero_experiment
+from lightning.pytorch.plugins import TorchCheckpointIO
 
 from physdyn.errors import ConfigError
+from physdyn.models.checkpoint_file import read_torch_file
 
 # Trainer arguments physdyn sets itself from other config keys.
 RESERVED_TRAINER_KEYS = {
@@ -27,6 +29,7 @@ RESERVED_TRAINER_KEYS = {
     "default_root_dir": "set out_dir instead",
     "enable_checkpointing": "physdyn always writes best.ckpt and last.ckpt",
     "enable_progress_bar": "set progress_bar instead",
+    "plugins": "physdyn reads checkpoints with its own plugin (docs/security.md)",
 }
 
 
@@ -164,6 +167,14 @@ def _drop_lightning_tips() -> None:
             target.addFilter(_DropLightningNoise())
 
 
+class SafeCheckpointIO(TorchCheckpointIO):
+    """Lightning's checkpoint files, read through ``read_torch_file``: resuming runs no code a checkpoint
+    carries, whatever the installed Lightning defaults to (before 2.6 it loads with weights_only=False)."""
+
+    def load_checkpoint(self, path, map_location=None, weights_only=None) -> dict[str, Any]:
+        return read_torch_file(path, "a .ckpt written by `physdyn fit`")
+
+
 def build_trainer(cfg_trainer: dict[str, Any], out_dir: Path, callbacks: list, progress_bar: bool, loggers: bool = True,
                   resumed_step: int | None = None):
     _drop_lightning_tips()
@@ -180,7 +191,7 @@ def build_trainer(cfg_trainer: dict[str, Any], out_dir: Path, callbacks: list, p
             warnings.filterwarnings("ignore", message=".*exists and is not empty.*")
             return Trainer(
                 default_root_dir=str(out_dir), callbacks=callbacks, logger=logger,
-                enable_progress_bar=progress_bar, **kwargs,
+                enable_progress_bar=progress_bar, plugins=[SafeCheckpointIO()], **kwargs,
             )
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"config key 'trainer': {str(exc).splitlines()[0]}") from None

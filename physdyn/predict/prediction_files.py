@@ -132,8 +132,16 @@ def read_prediction(path: str | Path) -> dict[str, Any]:
         raw = json.loads(path.read_text())
         flat = _flat(raw)
     elif ext == ".npz":
-        with np.load(path) as data:
-            flat = {k: data[k] for k in data.files}
+        # allow_pickle=False: an array of Python objects is unpickled when read, running any code it carries.
+        with np.load(path, allow_pickle=False) as data:
+            try:
+                flat = {k: data[k] for k in data.files}
+            except ValueError as exc:
+                if "allow_pickle" not in str(exc):
+                    raise
+                raise PredictionError(f"{path} holds Python objects that physdyn does not load (files are read "
+                                      f"without running code; docs/security.md); write prediction files with "
+                                      f"`physdyn predict ... --out FILE`") from None
         for key, value in list(flat.items()):
             if value.ndim == 0:
                 flat[key] = value.item()
