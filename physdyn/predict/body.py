@@ -12,7 +12,7 @@ import trimesh
 
 from physdyn.config import DataConfig, MassConfig
 from physdyn.errors import PredictionError, ShapeError
-from physdyn.geometry.mesh_io import check_mesh, load_mesh
+from physdyn.geometry.mesh_io import load_mesh
 from physdyn.sim.body import body_surface_points, rigid_body
 from physdyn.sim.trajectory import resting_com_position
 
@@ -51,10 +51,12 @@ def prepare_body(mesh: Any, scale: float = 1.0, density: float | None = None) ->
         if not np.isfinite(scale) or scale <= 0:
             raise ShapeError(f"mesh {IN_MEMORY}: scale must be a positive number, got {scale}")
         name = IN_MEMORY
-        raw = mesh.copy()
+        raw = mesh
         if scale != 1.0:
+            # A copy of the geometry alone: ``mesh.copy()`` also deep-copies visuals and caches, milliseconds
+            # for a large mesh. Unscaled, rigid_body checks and cleans a copy of its own.
+            raw = trimesh.Trimesh(vertices=np.array(mesh.vertices), faces=np.array(mesh.faces), process=False)
             raw.apply_scale(scale)
-        check_mesh(raw, name)
     elif isinstance(mesh, (str, os.PathLike)):
         name = str(mesh)
         raw = load_mesh(mesh, scale)
