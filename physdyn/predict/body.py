@@ -3,8 +3,10 @@ properties and collision hull (``RigidBodySpec``), the point cloud the model see
 
 from __future__ import annotations
 
+import hashlib
 import os
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -65,6 +67,30 @@ def prepare_body(mesh: Any, scale: float = 1.0, density: float | None = None) ->
     density = MassConfig().density if density is None else float(density)
     body = rigid_body(raw, name, density, mass_name=f"mesh {name}")
     return PreparedBody(mesh=body.mesh, spec=body.spec, name=name, notes=body.notes, scale=float(scale))
+
+
+def preparation_key(mesh: Any, scale: float) -> tuple | None:
+    """What a preparation of ``mesh`` at ``scale`` depends on, as a hashable key: for a ``trimesh.Trimesh``
+    its content (a digest of the vertex and face arrays, so two equal objects share a key and a changed
+    mesh gets a new one); for a file its resolved path, size and modification time. None when there is
+    nothing to cache: a ``PreparedBody`` (already prepared), another type, or a path that cannot be read
+    (``prepare_body`` then raises the error that names it)."""
+
+    if isinstance(mesh, trimesh.Trimesh):
+        digest = hashlib.sha256()
+        for array in (mesh.vertices, mesh.faces):
+            array = np.ascontiguousarray(array)
+            digest.update(f"{array.dtype.str}{array.shape}".encode())
+            digest.update(array)
+        return ("mesh", digest.hexdigest(), float(scale))
+    if isinstance(mesh, (str, os.PathLike)):
+        try:
+            path = Path(mesh).expanduser().resolve()
+            stat = path.stat()
+        except (OSError, RuntimeError):  # missing, unreadable, or a symlink loop
+            return None
+        return ("file", str(path), stat.st_size, stat.st_mtime_ns, float(scale))
+    return None
 
 
 def initial_pose(spec: Any, orientation_xyzw: np.ndarray) -> np.ndarray:
