@@ -13,9 +13,12 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
-from scipy.spatial import ConvexHull, QhullError
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components
 
 from physdyn.errors import ShapeError
+from physdyn.geometry.hull import PointHull, hull_volume, point_hull
+from physdyn.geometry.surface import face_areas, face_crosses
 
 MESH_EXTENSIONS: tuple[str, ...] = (".obj", ".stl", ".ply", ".off", ".glb")
 
@@ -38,11 +41,14 @@ class PreparedMesh:
     watertight: True if ``mesh`` is a closed, consistently wound volume, so its exact mass properties are
         valid; False means a caller should use the convex hull's mass properties instead.
     warnings: one-line messages naming the mesh, for the user.
+    hull_vertices: (H, 3) the vertices of ``mesh``'s convex hull (those of ``mesh.convex_hull``, same order)
+        when the cleaning computed them, else None.
     """
 
     mesh: trimesh.Trimesh
     watertight: bool
     warnings: list[str] = field(default_factory=list)
+    hull_vertices: np.ndarray | None = None
 
 
 def load_mesh(path: str | Path, scale: float = 1.0) -> trimesh.Trimesh:
@@ -109,13 +115,21 @@ def check_mesh(mesh: trimesh.Trimesh, name: str) -> None:
     """Raise ``ShapeError`` (naming ``name``) if ``mesh`` cannot be a rigid body: no faces, non-finite
     vertices, zero volume or an absurd size. Non-manifold or open meshes pass: ``prepare_mesh`` deals with
     those."""
-    vertices = np.asarray(mesh.vertices)
-    faces = np.asarray(mesh.faces)
+    check_surface(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64), name)
+
+
+def check_surface(vertices: np.ndarray, faces: np.ndarray, name: str) -> PointHull | None:
+    """``check_mesh`` on arrays: vertices (V, 3) float64, faces (F, 3) int64. Returns the convex hull of the
+    vertices the faces use (indices into ``vertices``), which the check needs anyway and the collision hull
+    reuses; None when qhull builds it only with its default options (rare precision cases)."""
     if len(faces) == 0 or len(vertices) == 0:
         raise ShapeError(f"mesh {name} has no faces; export it as a triangle surface mesh")
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise ShapeError(f"mesh {name} has faces that index missing vertices; re-export the mesh")
-    used = vertices[np.unique(faces)]
+    referenced = np.zeros(len(vertices), dtype=bool)
+    referenced[faces.ravel()] = True
+    all_used = bool(referenced.all())
+    used = vertices if all_used else vertices[referenced]
     if not np.isfinite(used).all():
         bad = int((~np.isfinite(used)).any(axis=1).sum())
         raise ShapeError(
@@ -124,7 +138,9 @@ def check_mesh(mesh: trimesh.Trimesh, name: str) -> None:
     extent = float(np.ptp(used, axis=0).max())
     if extent == 0.0:
         raise ShapeError(f"mesh {name} has zero volume (all vertices coincide); it must be a solid")
-    if _hull_volume(used) <= _FLAT_VOLUME_FRACTION * extent**3:
+    hull = point_hull(used)
+    volume = hull.volume if hull is not None else hull_volume(used)
+    if volume <= _FLAT_VOLUME_FRACTION * extent**3:
         raise ShapeError(
             f"mesh {name} has zero volume (its points are coplanar or collinear); it must be a solid, "
             "not a flat sheet or a line"
@@ -135,16 +151,9 @@ def check_mesh(mesh: trimesh.Trimesh, name: str) -> None:
             "it is probably in other units: pass a scale "
             "(e.g. meshes.scale=0.001 for millimetres, 0.01 for centimetres)"
         )
-
-
-def _hull_volume(points: np.ndarray) -> float:
-    """Volume of the convex hull of ``points`` (P, 3); 0 for flat or too few points."""
-    if len(points) < 4:
-        return 0.0
-    try:
-        return float(ConvexHull(points).volume)
-    except (QhullError, ValueError):  # Qhull refuses coplanar/collinear input
-        return 0.0
+    if hull is None or all_used:
+        return hull
+    return PointHull(vertex_index=np.flatnonzero(referenced)[hull.vertex_index], volume=hull.volume)
 
 
 def prepare_mesh(mesh: trimesh.Trimesh, name: str) -> PreparedMesh:
@@ -155,13 +164,21 @@ def prepare_mesh(mesh: trimesh.Trimesh, name: str) -> PreparedMesh:
     (``watertight=False``) rather than failing: its convex hull still gives usable mass properties.
     Raises ``ShapeError`` for a mesh with no volume. The input is not modified.
     """
-    check_mesh(mesh, name)
+    # Copies: the cleaned mesh never shares memory with the caller's, which may change it later.
+    vertices = np.array(mesh.vertices, dtype=np.float64)
+    faces = np.array(mesh.faces, dtype=np.int64)
+    hull = check_surface(vertices, faces, name)
+    out = trimesh.Trimesh(vertices=vertices, faces=faces, process=False)
+    if hull is not None and already_clean(vertices, faces):
+        # Most meshes (every procedural one) arrive clean, and the repairs below would each be a no-op that
+        # costs milliseconds; the hull of the check is then the hull of the cleaned mesh.
+        return PreparedMesh(mesh=out, watertight=True, hull_vertices=vertices[hull.vertex_index])
+    return _repair(out, name)
+
+
+def _repair(out: trimesh.Trimesh, name: str) -> PreparedMesh:
+    """``prepare_mesh``'s cleaning, in place on ``out`` (a fresh copy)."""
     notes: list[str] = []
-    out = trimesh.Trimesh(
-        vertices=np.asarray(mesh.vertices, dtype=np.float64),
-        faces=np.asarray(mesh.faces, dtype=np.int64),
-        process=False,
-    )
     n_faces = len(out.faces)
     out.merge_vertices()
     out.update_faces(out.nondegenerate_faces())
@@ -188,6 +205,91 @@ def prepare_mesh(mesh: trimesh.Trimesh, name: str) -> PreparedMesh:
             "(repair the mesh for exact ones)"
         )
     return PreparedMesh(mesh=out, watertight=watertight, warnings=notes)
+
+
+def already_clean(vertices: np.ndarray, faces: np.ndarray) -> bool:
+    """True when ``_repair`` would leave the surface vertices (V, 3) float64 / faces (F, 3) int64 exactly as
+    it is and call it a volume: every vertex used and none coincident (``merge_vertices`` keeps them all,
+    in order), no degenerate face, every edge shared by exactly two faces running along it in opposite
+    directions (watertight, consistent winding, so ``fix_winding`` and ``fill_holes`` do nothing) and
+    each connected body of positive volume (``fix_normals`` flips nothing). No duplicate face survives
+    these: a face and its copy would share directed edges, or, wound oppositely, make a body of their own
+    with no volume."""
+    used = np.zeros(len(vertices), dtype=bool)
+    used[faces.ravel()] = True
+    if not used.all() or not _distinct_vertices(vertices):
+        return False
+    crosses = face_crosses(vertices, faces)
+    if not _nondegenerate(vertices, faces, face_areas(crosses)):
+        return False
+    neighbours = edge_neighbours(faces)
+    return neighbours is not None and _bodies_have_volume(vertices, faces, crosses, neighbours)
+
+
+def _nondegenerate(vertices: np.ndarray, faces: np.ndarray, areas: np.ndarray) -> bool:
+    """True when no face is degenerate by trimesh's rule (``nondegenerate_faces``: both sides of its 2D
+    bounding box longer than tol.merge); areas (F,) from ``face_areas``."""
+    # A side is twice the area over an edge, and no edge is longer than the bounding box's diagonal: with
+    # a factor 2 to spare for round-off, its area alone proves a face sound. trimesh's test runs on the rest.
+    diagonal = float(np.linalg.norm(np.ptp(vertices, axis=0)))
+    small = np.flatnonzero(areas <= trimesh.tol.merge * diagonal)
+    if len(small) == 0:
+        return True
+    return bool(trimesh.triangles.nondegenerate(np.take(vertices, faces[small], axis=0), areas=areas[small],
+                                                height=trimesh.tol.merge).all())
+
+
+def _distinct_vertices(vertices: np.ndarray) -> bool:
+    """True when no two of ``vertices`` (V, 3) coincide at trimesh's merge precision. False may also mean a
+    (rare) collision of the row hash: the caller then takes the slow path, which merges exactly."""
+    digits = trimesh.util.decimal_to_digits(trimesh.tol.merge)
+    rows = (vertices * (10**digits)).round().astype(np.int64)  # merge_vertices's rounding, to the bit
+    # Equal rows give equal hashes, so distinct hashes prove distinct rows (int64 arrays wrap around).
+    hashed = rows[:, 0] * np.int64(-7046029254386353131) + rows[:, 1] * np.int64(1099511628211) + rows[:, 2]
+    ordered = np.sort(hashed)
+    return bool((ordered[1:] != ordered[:-1]).all())
+
+
+def edge_neighbours(faces: np.ndarray) -> np.ndarray | None:
+    """(F, 3) int64: the face across edge j of each face (edge j runs from corner j to corner j + 1), or None
+    unless every edge is shared by exactly two faces running along it in opposite directions (trimesh's
+    ``is_watertight`` and ``is_winding_consistent`` together, from a single sort)."""
+    start = faces.ravel()
+    end = faces[:, [1, 2, 0]].ravel()
+    if len(start) % 2:
+        return None
+    low, high = np.minimum(start, end), np.maximum(start, end)
+    key = low * (int(high.max()) + 1) + high  # one integer per undirected edge
+    order = np.argsort(key, kind="stable")  # timsort: a mesh's edge keys come in long sorted runs (4x faster)
+    ordered = key[order]
+    # Sorted, the keys must come in equal pairs, each pair different from the next.
+    if not (ordered[0::2] == ordered[1::2]).all() or (ordered[2::2] == ordered[1:-1:2]).any():
+        return None
+    first, second = order[0::2], order[1::2]
+    if not (start[first] == end[second]).all():  # the same direction twice: inconsistent winding
+        return None
+    neighbours = np.empty(len(start), dtype=np.int64)
+    neighbours[first] = second // 3
+    neighbours[second] = first // 3
+    return neighbours.reshape(-1, 3)
+
+
+def _bodies_have_volume(vertices: np.ndarray, faces: np.ndarray, crosses: np.ndarray, neighbours: np.ndarray) -> bool:
+    """True when every edge-connected body of a closed surface encloses a clearly positive volume:
+    vertices (V, 3), faces (F, 3), their edge cross products (F, 3), neighbours (F, 3) from
+    ``edge_neighbours``. A body whose volume is within round-off of zero counts as not positive (the slow
+    path decides it)."""
+    count = len(neighbours)
+    adjacency = csr_matrix((np.ones(3 * count, dtype=bool), neighbours.ravel(), np.arange(0, 3 * count + 1, 3)),
+                           shape=(count, count))
+    # The adjacency is symmetric, so strong components are the bodies (and need no transpose).
+    bodies, label = connected_components(adjacency, directed=True, connection="strong")
+    # The divergence theorem per face, as trimesh's mass_properties integrates the volume (times 6).
+    x = vertices[:, 0]
+    signed = crosses[:, 0] * (np.take(x, faces[:, 0]) + np.take(x, faces[:, 1]) + np.take(x, faces[:, 2]))
+    volume = np.bincount(label, weights=signed, minlength=bodies)
+    scale = np.bincount(label, weights=np.abs(signed), minlength=bodies)
+    return bool((volume > 1e-9 * scale).all())
 
 
 def _orient(mesh: trimesh.Trimesh) -> None:

@@ -16,6 +16,7 @@ import numpy as np
 import trimesh
 
 from physdyn.errors import PhysdynError
+from physdyn.geometry.surface import face_areas, face_crosses
 
 
 def open3d():
@@ -62,8 +63,27 @@ def hull_surface_points(mesh: trimesh.Trimesh, num_points: int, seed: int = 0,
     fill = num_points - len(kept)
     if fill <= 0:
         return np.ascontiguousarray(kept[:num_points], dtype=np.float32)
-    samples, _ = trimesh.sample.sample_surface(mesh, fill, seed=seed)
-    return np.concatenate([kept, np.asarray(samples, dtype=np.float32)])
+    samples = uniform_surface_samples(mesh, fill, seed)
+    return np.concatenate([kept, samples.astype(np.float32)])
+
+
+def uniform_surface_samples(mesh: trimesh.Trimesh, count: int, seed: int) -> np.ndarray:
+    """(count, 3) float64 points uniform over the surface of ``mesh``: the very draws and arithmetic of
+    ``trimesh.sample.sample_surface(mesh, count, seed=seed)`` (the stores' clouds stay as they were), but
+    with the edge vectors of the picked faces only, not of every face, and the areas from
+    ``face_areas`` (together a millisecond less on 10k faces)."""
+    vertices, faces = mesh.vertices.view(np.ndarray), mesh.faces.view(np.ndarray)
+    weight = np.cumsum(face_areas(face_crosses(vertices, faces)))
+    random = np.random.default_rng(seed).random
+    face = np.searchsorted(weight, random(count) * weight[-1])
+    corners = vertices[faces[face]]  # (count, 3, 3)
+    origins = corners[:, 0]
+    vectors = corners[:, 1:] - origins[:, None, :]
+    # Two uniform lengths along the edges; a pair summing past 1 falls outside: fold it back inside.
+    lengths = random((count, 2, 1))
+    lengths[lengths.sum(axis=1).reshape(-1) > 1.0] -= 1.0
+    lengths = np.abs(lengths)
+    return (vectors * lengths).sum(axis=1) + origins
 
 
 def shape_points(mesh: trimesh.Trimesh, num_points: int, method: str = "surface", oversample: int = 3, seed: int = 0,

@@ -3,8 +3,10 @@ properties and collision hull (``RigidBodySpec``), the point cloud the model see
 
 from __future__ import annotations
 
+import hashlib
 import os
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -12,7 +14,7 @@ import trimesh
 
 from physdyn.config import DataConfig, MassConfig
 from physdyn.errors import PredictionError, ShapeError
-from physdyn.geometry.mesh_io import check_mesh, load_mesh
+from physdyn.geometry.mesh_io import load_mesh
 from physdyn.sim.body import body_surface_points, rigid_body
 from physdyn.sim.trajectory import resting_com_position
 
@@ -51,10 +53,12 @@ def prepare_body(mesh: Any, scale: float = 1.0, density: float | None = None) ->
         if not np.isfinite(scale) or scale <= 0:
             raise ShapeError(f"mesh {IN_MEMORY}: scale must be a positive number, got {scale}")
         name = IN_MEMORY
-        raw = mesh.copy()
+        raw = mesh
         if scale != 1.0:
+            # A copy of the geometry alone: ``mesh.copy()`` also deep-copies visuals and caches, milliseconds
+            # for a large mesh. Unscaled, rigid_body checks and cleans a copy of its own.
+            raw = trimesh.Trimesh(vertices=np.array(mesh.vertices), faces=np.array(mesh.faces), process=False)
             raw.apply_scale(scale)
-        check_mesh(raw, name)
     elif isinstance(mesh, (str, os.PathLike)):
         name = str(mesh)
         raw = load_mesh(mesh, scale)
@@ -63,6 +67,30 @@ def prepare_body(mesh: Any, scale: float = 1.0, density: float | None = None) ->
     density = MassConfig().density if density is None else float(density)
     body = rigid_body(raw, name, density, mass_name=f"mesh {name}")
     return PreparedBody(mesh=body.mesh, spec=body.spec, name=name, notes=body.notes, scale=float(scale))
+
+
+def preparation_key(mesh: Any, scale: float) -> tuple | None:
+    """What a preparation of ``mesh`` at ``scale`` depends on, as a hashable key: for a ``trimesh.Trimesh``
+    its content (a digest of the vertex and face arrays, so two equal objects share a key and a changed
+    mesh gets a new one); for a file its resolved path, size and modification time. None when there is
+    nothing to cache: a ``PreparedBody`` (already prepared), another type, or a path that cannot be read
+    (``prepare_body`` then raises the error that names it)."""
+
+    if isinstance(mesh, trimesh.Trimesh):
+        digest = hashlib.sha256()
+        for array in (mesh.vertices, mesh.faces):
+            array = np.ascontiguousarray(array)
+            digest.update(f"{array.dtype.str}{array.shape}".encode())
+            digest.update(array)
+        return ("mesh", digest.hexdigest(), float(scale))
+    if isinstance(mesh, (str, os.PathLike)):
+        try:
+            path = Path(mesh).expanduser().resolve()
+            stat = path.stat()
+        except (OSError, RuntimeError):  # missing, unreadable, or a symlink loop
+            return None
+        return ("file", str(path), stat.st_size, stat.st_mtime_ns, float(scale))
+    return None
 
 
 def initial_pose(spec: Any, orientation_xyzw: np.ndarray) -> np.ndarray:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 import os
 import warnings
+from collections import OrderedDict
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -27,7 +28,7 @@ from physdyn.eval.metrics import TOPPLE_THRESHOLD
 from physdyn.eval.rollout import rollout, sim_steps
 from physdyn.geometry.mass import vertical_inertia, world_inertia_per_mass
 from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_rotvec
-from physdyn.predict.body import PreparedBody, initial_pose, prepare_body
+from physdyn.predict.body import PreparedBody, initial_pose, preparation_key, prepare_body
 from physdyn.predict.simulator import SIMULATOR_NAME, simulate_from_state
 from physdyn.sim.trajectory import topple_labels
 
@@ -36,6 +37,7 @@ DEFAULT_NUM_POINTS = 1024
 MAX_LINEAR_SPEED = 50.0  # m/s; training pushes are 0.5-2 m/s
 MAX_ANGULAR_SPEED = 500.0  # rad/s
 MAX_SECONDS = 600.0  # a pushed object rests within seconds; far longer only allocates
+PREPARED_CACHE_SIZE = 256  # meshes whose preparation a Predictor keeps (a 10k-face one holds about 0.5 MB)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -128,6 +130,9 @@ class Predictor:
         self.model = model.to(resolve_device(device)) if hasattr(model, "to") else model
         self.name = str(name)
         self.physics = physics
+        # preparation_key -> PreparedBody, least recently used first: a new mesh costs milliseconds to
+        # prepare, a mesh seen before only a digest of its arrays.
+        self._prepared: OrderedDict[tuple, PreparedBody] = OrderedDict()
 
     @property
     def rate_hz(self) -> float:
@@ -168,7 +173,8 @@ class Predictor:
                      chunk_size: int = 1024) -> list[dict[str, Any]]:
         """``predict`` for R requests at once, rolled out as batches: one result per request, in order.
 
-        meshes: R file paths, ``trimesh.Trimesh`` or ``PreparedBody`` (a mesh named twice is prepared once);
+        meshes: R file paths, ``trimesh.Trimesh`` or ``PreparedBody`` (a mesh this predictor prepared
+        before, as the same file or the same content, is not prepared again: ``_bodies``);
         lin_vel, ang_vel: (R, 3), or (3,) for every request; seconds, scale, compare_sim: one value or R;
         orientation_xyzw: None (each mesh as it is), (4,) or (R, 4). Requests of different lengths share a
         roll-out, padded to the longest and cut to their own length; ``chunk_size`` at a time bounds memory. Results equal per-request ``predict`` up
@@ -241,17 +247,32 @@ class Predictor:
         return results  # type: ignore[return-value]
 
     def _bodies(self, meshes: list, scales: list) -> list[PreparedBody]:
-        """Each request's ``PreparedBody``, preparing a mesh named several times (same path or object, same
-        scale) once; its notes are issued once as ``PredictionWarning``."""
-        cache: dict[Any, PreparedBody] = {}
-        bodies = []
+        """Each request's ``PreparedBody``. A mesh this predictor prepared before, in this call or an
+        earlier one, is not prepared again: the same file (path, size, modification time) or a mesh of the
+        same content (an equal ``trimesh.Trimesh``, whatever the object), at the same scale. The last
+        ``PREPARED_CACHE_SIZE`` preparations are kept. Each body's notes are issued once per call as
+        ``PredictionWarning``."""
+        bodies: list[PreparedBody] = []
+        noted: set[int] = set()
+        keys: dict[tuple[int, Any], tuple | None] = {}  # per object: one digest for many pushes of one mesh
         for mesh, scale in zip(meshes, scales):
-            key = (str(Path(mesh).expanduser().resolve()) if isinstance(mesh, (str, os.PathLike)) else id(mesh), float(scale))
-            if key not in cache:
-                cache[key] = prepare_body(mesh, float(scale))
-                for note in cache[key].notes:
+            if (id(mesh), scale) not in keys:
+                keys[id(mesh), scale] = None if isinstance(mesh, PreparedBody) else preparation_key(mesh, scale)
+            key = keys[id(mesh), scale]
+            body = self._prepared.get(key) if key is not None else None
+            if body is None:
+                body = prepare_body(mesh, float(scale))
+                if key is not None:
+                    self._prepared[key] = body
+                    if len(self._prepared) > PREPARED_CACHE_SIZE:
+                        self._prepared.popitem(last=False)  # the least recently used
+            else:
+                self._prepared.move_to_end(key)
+            if id(body) not in noted:
+                noted.add(id(body))
+                for note in body.notes:
                     warnings.warn(note, PredictionWarning, stacklevel=3)
-            bodies.append(cache[key])
+            bodies.append(body)
         return bodies
 
     def _result(self, states: dict, probability: Any, toppled: bool, body: PreparedBody, source: str) -> dict[str, Any]:
@@ -265,7 +286,7 @@ class Predictor:
             "angular_velocity": np.asarray(states["angular_velocity"], dtype=np.float64),
             "topple_probability": None if probability is None else np.asarray(probability, dtype=np.float64),
             "toppled": bool(toppled),
-            "com_mesh": np.asarray(body.spec.com_mesh, dtype=np.float64),
+            "com_mesh": np.array(body.spec.com_mesh, dtype=np.float64),  # a copy: the body may be cached
             "mesh": body.name,
             "mesh_scale": body.scale,  # the mesh file's units to metres, so a viewer can draw it again
             "checkpoint": source,

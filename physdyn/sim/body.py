@@ -35,15 +35,18 @@ class RigidBodySpec:
     hull_vertices: np.ndarray
 
     @classmethod
-    def from_mesh(cls, mesh: trimesh.Trimesh, props: MassProperties) -> "RigidBodySpec":
+    def from_mesh(cls, mesh: trimesh.Trimesh, props: MassProperties,
+                  hull_vertices: np.ndarray | None = None) -> "RigidBodySpec":
+        """``hull_vertices``: (H, 3) those of ``mesh.convex_hull`` in mesh coordinates, when already known
+        (``PreparedMesh.hull_vertices``); computed otherwise."""
         moments, axes = props.principal()
-        hull = mesh.convex_hull
+        hull = mesh.convex_hull.vertices if hull_vertices is None else hull_vertices
         return cls(
             mass=float(props.mass),
             inertia_diag=moments,
             principal_axes=axes,
             com_mesh=np.asarray(props.com, dtype=np.float64),
-            hull_vertices=(hull.vertices - props.com) @ axes,
+            hull_vertices=(hull - props.com) @ axes,
         )
 
     @property
@@ -88,5 +91,5 @@ def rigid_body(mesh: trimesh.Trimesh, name: str, density: float, method: str = "
     ``ShapeError`` for a mesh that is no usable solid."""
     prepared = prepare_mesh(mesh, name)
     props = solid_mass_properties(prepared.mesh, prepared.watertight, density, mass_name or name, method, voxel_pitch)
-    return RigidBody(prepared.mesh, props, RigidBodySpec.from_mesh(prepared.mesh, props), prepared.watertight,
-                     list(prepared.warnings))
+    spec = RigidBodySpec.from_mesh(prepared.mesh, props, prepared.hull_vertices)
+    return RigidBody(prepared.mesh, props, spec, prepared.watertight, list(prepared.warnings))

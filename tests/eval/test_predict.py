@@ -13,6 +13,7 @@ import physdyn
 from physdyn.errors import PhysdynError, PredictionError, PredictionWarning
 from physdyn.geometry.rotations import quat_to_matrix
 from physdyn.models.training import fit, load_experiment_config
+from physdyn.predict.body import preparation_key, prepare_body
 from physdyn.predict.prediction_files import read_prediction, write_prediction
 from physdyn.predict.predictor import Predictor, load_predictor
 from tests.conftest import run_cli
@@ -332,3 +333,61 @@ def test_batch_lines_with_a_non_boolean_or_an_escaping_path_are_refused(checkpoi
     assert sorted(p.name for p in out.iterdir()) == ["ok.json", "ok2.json"]
     assert not (tmp_path / "outside.json").exists()
     assert "2 of 4 requests written" in stdout
+
+
+def test_the_preparation_is_cached_by_mesh_content_not_object_identity(checkpoint, meshes, tmp_path, monkeypatch):
+    import physdyn.predict.predictor as predictor_module
+
+    prepared = []
+
+    def counting(mesh, scale=1.0, density=None):
+        prepared.append(mesh)
+        return prepare_body(mesh, scale, density)
+
+    monkeypatch.setattr(predictor_module, "prepare_body", counting)
+    predictor = load_predictor(checkpoint)
+    box = trimesh.creation.box((0.08, 0.12, 0.2))
+    twin = trimesh.Trimesh(box.vertices.copy(), box.faces.copy(), process=False)  # equal content, another object
+    first = predictor.predict(box, LIN, ANG, seconds=1.0)
+    cached = predictor.predict(twin, LIN, ANG, seconds=1.0)
+    batch = predictor.predict_many([twin, box], LIN, ANG, seconds=1.0)
+    assert len(prepared) == 1
+    fresh = Predictor(predictor.model).predict(twin, LIN, ANG, seconds=1.0)  # another predictor prepares its own
+    assert len(prepared) == 2
+    keys = ("com_position", "orientation_xyzw", "linear_velocity", "angular_velocity", "com_mesh")
+    for key in keys:  # the cached preparation predicts exactly what a fresh one does
+        np.testing.assert_array_equal(cached[key], fresh[key], err_msg=key)
+        np.testing.assert_array_equal(first[key], fresh[key], err_msg=key)
+        for res in batch:  # batched: to float32 round-off, as predict_many promises
+            np.testing.assert_allclose(res[key], fresh[key], rtol=1e-5, atol=1e-5, err_msg=key)
+
+    # A changed mesh (in place: the same object) is prepared again; so is another scale.
+    box.vertices[:, 2] *= 1.5
+    taller = predictor.predict(box, LIN, ANG, seconds=1.0)
+    assert len(prepared) == 3 and taller["com_position"][0, 2] == pytest.approx(0.15, abs=1e-9)
+    predictor.predict(twin, LIN, ANG, seconds=1.0, scale=0.5)
+    assert len(prepared) == 4
+
+    # The same file across calls, under two spellings of its path, is prepared once; rewritten, again.
+    path = tmp_path / "can.stl"
+    path.write_bytes((meshes / "can.stl").read_bytes())
+    predictor.predict(str(path), LIN, ANG, seconds=1.0)
+    predictor.predict(tmp_path / "." / "can.stl", LIN, ANG, seconds=1.0)
+    assert len(prepared) == 5
+    trimesh.creation.cylinder(radius=0.05, height=0.15, sections=24).export(path)
+    predictor.predict(str(path), LIN, ANG, seconds=1.0)
+    assert len(prepared) == 6
+
+
+def test_the_preparation_cache_is_bounded_and_keeps_the_recently_used(checkpoint, monkeypatch):
+    import physdyn.predict.predictor as predictor_module
+
+    monkeypatch.setattr(predictor_module, "PREPARED_CACHE_SIZE", 2)
+    predictor = load_predictor(checkpoint)
+    boxes = [trimesh.creation.box((0.1, 0.1, 0.1 + 0.02 * i)) for i in range(3)]
+    predictor.predict_many(boxes[:2], LIN, ANG, seconds=0.5)
+    predictor.predict(boxes[0], LIN, ANG, seconds=0.5)  # box 0 is now the most recently used
+    predictor.predict(boxes[2], LIN, ANG, seconds=0.5)  # evicts box 1
+    kept = {key[1] for key in predictor._prepared}
+    keys = [preparation_key(b, 1.0)[1] for b in boxes]
+    assert kept == {keys[0], keys[2]}

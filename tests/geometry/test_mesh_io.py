@@ -210,3 +210,62 @@ def test_prepared_procedural_shapes_stay_watertight():
         prepared = prepare_mesh(inst.mesh, inst.source)
         assert prepared.watertight
         assert np.isclose(prepared.mesh.volume, inst.mesh.volume)
+
+
+# --------------------------------------------------------------------------------------------------
+# The clean fast path: what the repairs would leave, without running them
+# --------------------------------------------------------------------------------------------------
+def _clean_meshes() -> dict[str, trimesh.Trimesh]:
+    from physdyn.registry import SHAPE_FAMILIES
+
+    meshes = {name: SHAPE_FAMILIES.build(name).make(1, np.random.default_rng(7)).mesh
+              for name in ("primitives", "bottles", "mugs", "trashcans", "speakers")}
+    box = trimesh.creation.box(extents=EXTENTS)
+    box.apply_translation([-0.3, 0.2, -0.1])  # negative coordinates: the mass integrals' slow cubes
+    apart = trimesh.creation.box(extents=EXTENTS)
+    apart.apply_translation([0.5, 0.0, 0.0])
+    meshes.update(box=box, torus=trimesh.creation.torus(0.1, 0.03), sphere=trimesh.creation.uv_sphere(0.1, [24, 24]),
+                  two_bodies=trimesh.util.concatenate([box, apart]))
+    return meshes
+
+
+def test_a_clean_mesh_skips_the_repairs_and_comes_out_exactly_as_they_would_leave_it():
+    from physdyn.geometry.mesh_io import _repair, already_clean
+
+    for name, mesh in _clean_meshes().items():
+        vertices, faces = np.array(mesh.vertices), np.array(mesh.faces, dtype=np.int64)
+        assert already_clean(vertices, faces), name
+        fast = prepare_mesh(mesh, name)
+        repaired = _repair(trimesh.Trimesh(vertices.copy(), faces.copy(), process=False), name)
+        np.testing.assert_array_equal(fast.mesh.vertices, repaired.mesh.vertices, err_msg=name)
+        np.testing.assert_array_equal(fast.mesh.faces, repaired.mesh.faces, err_msg=name)
+        assert fast.watertight and repaired.watertight and fast.warnings == repaired.warnings == [], name
+        # The check's hull is the collision hull: trimesh's, vertex for vertex, in its order.
+        np.testing.assert_array_equal(fast.hull_vertices, repaired.mesh.convex_hull.vertices, err_msg=name)
+        assert not np.shares_memory(fast.mesh.vertices, mesh.vertices)  # the caller's mesh stays its own
+
+
+def test_every_mesh_the_repairs_change_takes_the_slow_path():
+    from physdyn.geometry.mesh_io import already_clean
+
+    cube = trimesh.creation.box(extents=EXTENTS)
+    inverted = cube.copy()
+    inverted.invert()
+    far = trimesh.creation.box(bounds=[[0.3, 0, 0], [0.4, 0.1, 0.1]])
+    far.invert()
+    merged_corner = np.array(cube.faces)
+    merged_corner[merged_corner == 0] = 8  # a second copy of vertex 0 (vertex 8), used instead of it...
+    merged_corner[0, merged_corner[0] == 8] = 0  # ...except by the first face: merging joins the two
+    cases = {
+        "inverted": (inverted.vertices, inverted.faces),
+        "split vertices": (cube.vertices[cube.faces].reshape(-1, 3), np.arange(36).reshape(-1, 3)),
+        "open": (cube.vertices, cube.faces[1:]),
+        "duplicate face": (cube.vertices, np.vstack([cube.faces, cube.faces[:1]])),
+        "degenerate face": (cube.vertices, np.vstack([cube.faces, [[0, 0, 1]]])),
+        "unreferenced vertex": (np.vstack([cube.vertices, [[1.0, 1.0, 1.0]]]), cube.faces),
+        "coincident vertex": (np.vstack([cube.vertices, cube.vertices[:1]]), merged_corner),
+        "one body inverted": (np.vstack([cube.vertices, far.vertices]), np.vstack([cube.faces, far.faces + 8])),
+        "sharing an edge": (_two_cubes_sharing_an_edge().vertices, _two_cubes_sharing_an_edge().faces),
+    }
+    for name, (vertices, faces) in cases.items():
+        assert not already_clean(np.array(vertices, dtype=np.float64), np.array(faces, dtype=np.int64)), name
