@@ -177,8 +177,8 @@ class Predictor:
         before, as the same file or the same content, is not prepared again: ``_bodies``);
         lin_vel, ang_vel: (R, 3), or (3,) for every request; seconds, scale, compare_sim: one value or R;
         orientation_xyzw: None (each mesh as it is), (4,) or (R, 4). Requests of different lengths share a
-        roll-out, padded to the longest and cut to their own length; ``chunk_size`` at a time bounds memory. Results equal per-request ``predict`` up
-        to float32 round-off of batched arithmetic.
+        roll-out, padded to the longest and cut to their own length; ``chunk_size`` requests at a time bound
+        memory. Results equal per-request ``predict`` up to float32 round-off of batched arithmetic.
         """
 
         meshes = list(meshes)
