@@ -21,15 +21,18 @@ Truth: `physdyn simulate`'s ``meshes`` family per the conventions (1/960 s, 15 H
 step), ``--pushes`` per mesh; the stores are made under ``--work`` on first use and reused after.
 
 Two regimes:
-(a) new meshes. physdyn: ``Predictor.predict(fresh trimesh copy, v0, w0, seconds, q0)`` per request (one at
-    a time) and ``predict_many`` over every request of the set (batched); each request gets its own copy,
-    so the mesh is prepared for each (files are parsed before the timing). PyBullet: one world per physics
-    step, reused for the whole run; per mesh the body (``prepare_body``: cleaning, hull, mass properties;
-    then its collision shape) is built inside the timing, once, and pushed ``--pushes`` times from the
-    step-0 state (velocities set directly, as ``simulate_from_state`` does). Horizon: each truth's length.
+(a) new meshes: every request treats its mesh as new, and the horizon is each truth's own length. physdyn:
+    ``Predictor.predict(fresh trimesh copy, v0, w0, seconds, q0)`` per request (one at a time), and
+    ``predict_many`` over all requests of the set in rounds of one push of every mesh (batched: ``--meshes``
+    new meshes a call); every request gets its own copy, so its mesh is prepared (the files are parsed
+    before the timing), and physdyn's content-keyed PyBullet caches are emptied between requests and calls,
+    outside the timing (``forget_seen_meshes``). PyBullet: one world per physics step, reused for the whole
+    run; per mesh the body (``prepare_body``: cleaning, hull, mass properties; then its collision shape) is
+    built inside the timing, once, and pushed from each step-0 state (velocities set directly, as
+    ``simulate_from_state`` does); its cost per request is that build plus one roll-out.
 (b) many pushes of one mesh: ``--one-meshes`` meshes of each set, ``--one-mesh-pushes`` simulated pushes
     each, a ``--one-mesh-seconds`` horizon. physdyn: one ``predict_many`` per mesh on one mesh object
-    (prepared once, inside the timing); PyBullet: the body built once per mesh.
+    (prepared once, inside the timing); PyBullet: the body built once per mesh; both spread over the pushes.
 Information ceilings (regime a, no cost): PyBullet at 1/960 s on the convex hull of
 ``prepare_body(mesh).points_body(N, method)`` with the body's own inertia (benchmarks/studies/points_ceiling.py),
 for surface 256, hull_surface 256 / 512 / 1024 and each predictor's own input.
@@ -77,8 +80,8 @@ from physdyn.geometry.mesh_io import MESH_EXTENSIONS, load_mesh  # noqa: E402
 from physdyn.models.export import export_checkpoint  # noqa: E402
 from physdyn.predict.body import prepare_body  # noqa: E402
 from physdyn.predict.predictor import BUNDLED_CHECKPOINT, Predictor, load_predictor  # noqa: E402
+from physdyn.sim import cloud_body  # noqa: E402
 from physdyn.sim.bullet import pb  # noqa: E402
-from physdyn.sim.cloud_body import cloud_body_spec  # noqa: E402
 from physdyn.sim.trajectory import place_at_rest, record  # noqa: E402
 from physdyn.sim.world import PhysicsWorld  # noqa: E402
 
@@ -246,6 +249,11 @@ class Requests:
         keys = np.asarray(self.mesh)
         return {key: np.flatnonzero(keys == key) for key in dict.fromkeys(self.mesh)}
 
+    def rounds(self) -> list[np.ndarray]:
+        """The requests in rounds: round k holds the k-th push of every mesh, so no mesh twice."""
+        groups = list(self.by_mesh().values())
+        return [np.array([g[k] for g in groups if k < len(g)]) for k in range(max(map(len, groups)))]
+
 
 def requests_from_store(store, horizon: int | None = None) -> Requests:
     """Every simulation of ``store`` as a request: to its own length, or ``horizon`` steps (the truth held
@@ -307,10 +315,12 @@ def roll_out(world: PhysicsWorld, spec: Any, shape: int, req: Requests, r: int, 
     out.set(r, traj.com_position, traj.orientation_xyzw, traj.topple_step >= 0)
 
 
-def pybullet_row(world: PhysicsWorld, meshes: dict[str, trimesh.Trimesh], req: Requests, rate_hz: float) -> Outcome:
+def pybullet_row(world: PhysicsWorld, meshes: dict[str, trimesh.Trimesh], req: Requests, rate_hz: float,
+                 new_mesh_each: bool) -> Outcome:
     """PyBullet on each mesh's convex hull with its exact mass properties, at the world's step. The body
-    (``prepare_body`` on a fresh copy, then its collision shape) is built inside the timing, once per mesh
-    for all its requests."""
+    (``prepare_body`` on a fresh copy, then its collision shape) is built inside the timing, once per mesh.
+    Cost per trajectory: with ``new_mesh_each`` (regime a) a build and a roll-out, every request being a new
+    mesh; else (regime b) the builds spread over all the pushes."""
     out = Outcome.empty(len(req))
     groups = req.by_mesh()
     build = rollouts = 0.0
@@ -324,8 +334,8 @@ def pybullet_row(world: PhysicsWorld, meshes: dict[str, trimesh.Trimesh], req: R
             roll_out(world, spec, shape, req, r, rate_hz, out)
         t2 = CLOCK()
         build, rollouts = build + t1 - t0, rollouts + t2 - t1
-    out.ms = {"one": 1000 * (build + rollouts) / len(req), "build": 1000 * build / len(groups),
-              "rollout": 1000 * rollouts / len(req)}
+    out.ms = {"build": 1000 * build / len(groups), "rollout": 1000 * rollouts / len(req)}
+    out.ms["one"] = out.ms["build"] + out.ms["rollout"] if new_mesh_each else 1000 * (build + rollouts) / len(req)
     return out
 
 
@@ -337,19 +347,33 @@ def ceiling_row(world: PhysicsWorld, bodies: dict[str, Any], req: Requests, rate
     for key, idx in req.by_mesh().items():
         spec = bodies[key].spec
         per_mass = (spec.principal_axes * spec.inertia_diag) @ spec.principal_axes.T / spec.mass
-        cloud = cloud_body_spec(bodies[key].points_body(num_points, method), per_mass)
+        cloud = cloud_body.cloud_body_spec(bodies[key].points_body(num_points, method), per_mass)
         shape = world.collision_shape(cloud)
         for r in idx:
             roll_out(world, cloud, shape, req, r, rate_hz, out)
     return out
 
 
+def forget_seen_meshes() -> None:
+    """Make the next request's mesh new to physdyn, outside the timing. Its PyBullet helpers (the simulated
+    start, the roll-out topple classifier) keep each cloud's hull and collision shape, keyed by the cloud's
+    content, so a fresh copy of a mesh met before would skip that work (about 6 ms of the bundled model's).
+    There is no public way to drop them: this empties ``physdyn.sim.cloud_body``'s caches as its own
+    ``CloudSimulator`` does when they are full (a new world per simulator)."""
+    cloud_body._SPECS.clear()
+    for simulator in cloud_body._SHARED.values():
+        simulator.world.close()
+        simulator.world = PhysicsWorld(simulator.physics)
+        simulator._bodies.clear()
+
+
 def physdyn_one_at_a_time(predictor: Predictor, meshes: dict[str, trimesh.Trimesh], req: Requests) -> Outcome:
-    """``Predictor.predict`` per request, each on a fresh copy of its mesh (so each is prepared), timed."""
+    """``Predictor.predict`` per request, each on a fresh copy of its mesh, new to physdyn, timed."""
     copies = [meshes[key].copy() for key in req.mesh]
     out = Outcome.empty(len(req))
     spent = 0.0
     for r, mesh in enumerate(copies):
+        forget_seen_meshes()
         t0 = CLOCK()
         result = predictor.predict(mesh, req.v0[r], req.w0[r], seconds=req.steps[r] / predictor.rate_hz,
                                    orientation_xyzw=req.q0[r])
@@ -359,18 +383,20 @@ def physdyn_one_at_a_time(predictor: Predictor, meshes: dict[str, trimesh.Trimes
     return out
 
 
-def physdyn_batched(predictor: Predictor, meshes: dict[str, trimesh.Trimesh], req: Requests, one_object: bool) -> Outcome:
-    """``Predictor.predict_many``, timed: over every request at once, each with a fresh copy of its mesh
-    (regime a), or (``one_object``) once per mesh with one copy shared by all its requests (regime b)."""
-    groups = req.by_mesh() if one_object else {None: np.arange(len(req))}
+def physdyn_batched(predictor: Predictor, meshes: dict[str, trimesh.Trimesh], req: Requests,
+                    batches: list[np.ndarray], one_object: bool) -> Outcome:
+    """One timed ``Predictor.predict_many`` per batch (indices into ``req``), its meshes new to physdyn:
+    each request with a fresh copy of its mesh, or (``one_object``, a batch of one mesh's pushes) one
+    copy shared by all, prepared once."""
     out = Outcome.empty(len(req))
     spent = 0.0
-    for key, idx in groups.items():
-        shared = meshes[key].copy() if one_object else None
+    for idx in batches:
+        shared = meshes[req.mesh[idx[0]]].copy()
         copies = [shared if one_object else meshes[req.mesh[r]].copy() for r in idx]
+        forget_seen_meshes()
         t0 = CLOCK()
         results = predictor.predict_many(copies, req.v0[idx], req.w0[idx], seconds=list(req.steps[idx] / predictor.rate_hz),
-                                          orientation_xyzw=req.q0[idx])
+                                         orientation_xyzw=req.q0[idx])
         spent += CLOCK() - t0
         for r, result in zip(idx, results):
             out.set(r, result["com_position"], result["orientation_xyzw"], result["toppled"])
@@ -441,11 +467,11 @@ def regime_new_meshes(meshes: dict[str, trimesh.Trimesh], req: Requests, worlds:
     """Regime (a): each request a mesh new to the predictor; rows in table order."""
     rows = [make_row("Coulomb sliding (no rotation, no topple)", "baseline", req, sliding_outcome(req))]
     for hz, world in worlds.items():
-        out = progress.measure(f"PyBullet 1/{hz} s", lambda: pybullet_row(world, meshes, req, rate_hz))
+        out = progress.measure(f"PyBullet 1/{hz} s", lambda: pybullet_row(world, meshes, req, rate_hz, True))
         rows.append(make_row(f"PyBullet 1/{hz} s", "pybullet", req, out, hz=hz))
     for name, predictor in predictors.items():
         one = progress.measure(f"{name}, one at a time", lambda: physdyn_one_at_a_time(predictor, meshes, req))
-        batched = progress.measure(f"{name}, batched", lambda: physdyn_batched(predictor, meshes, req, False))
+        batched = progress.measure(f"{name}, batched", lambda: physdyn_batched(predictor, meshes, req, req.rounds(), False))
         one.ms.update(batched.ms)
         rows.append(make_row(name, "physdyn", req, one, batched=score(req, batched)))
     with warnings.catch_warnings():
@@ -463,10 +489,12 @@ def regime_one_mesh(meshes: dict[str, trimesh.Trimesh], req: Requests, worlds: d
     """Regime (b): many pushes of each of a few meshes; rows in table order."""
     rows = [make_row("Coulomb sliding (no rotation, no topple)", "baseline", req, sliding_outcome(req))]
     for hz, world in worlds.items():
-        out = progress.measure(f"PyBullet 1/{hz} s", lambda: pybullet_row(world, meshes, req, rate_hz))
+        out = progress.measure(f"PyBullet 1/{hz} s", lambda: pybullet_row(world, meshes, req, rate_hz, False))
         rows.append(make_row(f"PyBullet 1/{hz} s", "pybullet", req, out, hz=hz))
     for name, predictor in predictors.items():
-        out = progress.measure(f"{name}, predict_many on one mesh", lambda: physdyn_batched(predictor, meshes, req, True))
+        batches = list(req.by_mesh().values())
+        out = progress.measure(f"{name}, predict_many on one mesh",
+                               lambda: physdyn_batched(predictor, meshes, req, batches, True))
         rows.append(make_row(name, "physdyn", req, out))
     return add_cost_ratios(rows)
 
@@ -521,11 +549,12 @@ def regime_header(title: str, req: Requests, meshes: int) -> str:
 
 TABLE_NOTES = """Position: median final displacement error of the non-toppling pushes (ratio: over Coulomb sliding's median).
 Rotation: median final rotation error, non-toppling pushes (and all). Costs: CPU ms per trajectory on one core;
-"cost / PyBullet" gives one at a time / batched over PyBullet's one-at-a-time cost at that step. PyBullet's cost
-includes building each body (prepare_body + collision shape) once per mesh, spread over that mesh's pushes;
-its build column is that cost per mesh. physdyn prepares each request's mesh (a fresh copy per request) in
-regime (a), and one mesh object per mesh in regime (b). Ceilings: PyBullet at 1/960 s on the hull of the points
-(the body's own inertia), not timed."""
+"cost / PyBullet" gives one at a time / batched over PyBullet's cost at that step. Regime (a) treats every request
+as a new mesh: physdyn prepares each (a fresh copy; its content-keyed caches emptied, outside the timing) and
+batches one push of every mesh a call; PyBullet's cost is the build of the body (prepare_body + collision shape,
+its "build" column) plus one roll-out. Regime (b): one mesh object per mesh for physdyn, one body per mesh for
+PyBullet, both spread over the pushes. Ceilings: PyBullet at 1/960 s on the hull of the points (the body's own
+inertia), not timed."""
 
 
 def ceiling_labels(rows: list[dict], key: str) -> list[tuple[float, str]]:
@@ -746,7 +775,8 @@ def main() -> None:
         results[set_name] = result = measure_set(set_name, args, predictors, work)
         for regime in ("new_meshes", "one_mesh"):
             print(f"\n{result[regime]['header']}\n{table(result[regime]['rows'])}", flush=True)
-        print(skipped_line(result), flush=True)
+        if result["skipped"]:
+            print(skipped_line(result), flush=True)
     header.append(f"{time.perf_counter() - started:.0f} s in all; load average {os.getloadavg()[0]:.2f} at the end")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(report(results, header))
