@@ -315,28 +315,33 @@ def roll_out(world: PhysicsWorld, spec: Any, shape: int, req: Requests, r: int, 
     out.set(r, traj.com_position, traj.orientation_xyzw, traj.topple_step >= 0)
 
 
-def pybullet_row(world: PhysicsWorld, meshes: dict[str, trimesh.Trimesh], req: Requests, rate_hz: float,
-                 new_mesh_each: bool) -> Outcome:
-    """PyBullet on each mesh's convex hull with its exact mass properties, at the world's step. The body
-    (``prepare_body`` on a fresh copy, then its collision shape) is built inside the timing, once per mesh.
-    Cost per trajectory: with ``new_mesh_each`` (regime a) a build and a roll-out, every request being a new
-    mesh; else (regime b) the builds spread over all the pushes."""
-    out = Outcome.empty(len(req))
+def pybullet_rows(worlds: dict[int, PhysicsWorld], meshes: dict[str, trimesh.Trimesh], req: Requests, rate_hz: float,
+                  new_mesh_each: bool) -> dict[int, Outcome]:
+    """PyBullet on each mesh's convex hull with its exact mass properties, at each world's step. The body
+    (``prepare_body`` on a fresh copy, then its collision shape) is built inside the timing, once per mesh
+    and step. Cost per trajectory: with ``new_mesh_each`` (regime a) a build and a roll-out, every request
+    being a new mesh; else (regime b) the builds spread over all the pushes. The steps take turns mesh by
+    mesh, so a change in the shared machine's load falls on all of them alike."""
+    outs = {hz: Outcome.empty(len(req)) for hz in worlds}
+    build, rollouts = dict.fromkeys(worlds, 0.0), dict.fromkeys(worlds, 0.0)
     groups = req.by_mesh()
-    build = rollouts = 0.0
     for key, idx in groups.items():
-        mesh = meshes[key].copy()
-        t0 = CLOCK()
-        spec = prepare_body(mesh).spec
-        shape = world.collision_shape(spec)
-        t1 = CLOCK()
-        for r in idx:
-            roll_out(world, spec, shape, req, r, rate_hz, out)
-        t2 = CLOCK()
-        build, rollouts = build + t1 - t0, rollouts + t2 - t1
-    out.ms = {"build": 1000 * build / len(groups), "rollout": 1000 * rollouts / len(req)}
-    out.ms["one"] = out.ms["build"] + out.ms["rollout"] if new_mesh_each else 1000 * (build + rollouts) / len(req)
-    return out
+        for hz, world in worlds.items():
+            mesh = meshes[key].copy()
+            t0 = CLOCK()
+            spec = prepare_body(mesh).spec
+            shape = world.collision_shape(spec)
+            t1 = CLOCK()
+            for r in idx:
+                roll_out(world, spec, shape, req, r, rate_hz, outs[hz])
+            t2 = CLOCK()
+            build[hz] += t1 - t0
+            rollouts[hz] += t2 - t1
+    for hz, out in outs.items():
+        out.ms = {"build": 1000 * build[hz] / len(groups), "rollout": 1000 * rollouts[hz] / len(req)}
+        spread = 1000 * (build[hz] + rollouts[hz]) / len(req)
+        out.ms["one"] = out.ms["build"] + out.ms["rollout"] if new_mesh_each else spread
+    return outs
 
 
 def ceiling_row(world: PhysicsWorld, bodies: dict[str, Any], req: Requests, rate_hz: float, method: str,
@@ -367,41 +372,47 @@ def forget_seen_meshes() -> None:
         simulator._bodies.clear()
 
 
-def physdyn_one_at_a_time(predictor: Predictor, meshes: dict[str, trimesh.Trimesh], req: Requests) -> Outcome:
-    """``Predictor.predict`` per request, each on a fresh copy of its mesh, new to physdyn, timed."""
-    copies = [meshes[key].copy() for key in req.mesh]
-    out = Outcome.empty(len(req))
-    spent = 0.0
-    for r, mesh in enumerate(copies):
-        forget_seen_meshes()
-        t0 = CLOCK()
-        result = predictor.predict(mesh, req.v0[r], req.w0[r], seconds=req.steps[r] / predictor.rate_hz,
-                                   orientation_xyzw=req.q0[r])
-        spent += CLOCK() - t0
-        out.set(r, result["com_position"], result["orientation_xyzw"], result["toppled"])
-    out.ms = {"one": 1000 * spent / len(req)}
-    return out
+def physdyn_one_at_a_time(predictors: dict[str, Predictor], meshes: dict[str, trimesh.Trimesh],
+                          req: Requests) -> dict[str, Outcome]:
+    """``Predictor.predict`` per request, each on a fresh copy of its mesh, new to physdyn, timed; the
+    predictors take turns request by request (as the PyBullet steps do)."""
+    outs = {name: Outcome.empty(len(req)) for name in predictors}
+    spent = dict.fromkeys(predictors, 0.0)
+    for r, key in enumerate(req.mesh):
+        for name, predictor in predictors.items():
+            mesh = meshes[key].copy()
+            forget_seen_meshes()
+            t0 = CLOCK()
+            result = predictor.predict(mesh, req.v0[r], req.w0[r], seconds=req.steps[r] / predictor.rate_hz,
+                                       orientation_xyzw=req.q0[r])
+            spent[name] += CLOCK() - t0
+            outs[name].set(r, result["com_position"], result["orientation_xyzw"], result["toppled"])
+    for name, out in outs.items():
+        out.ms = {"one": 1000 * spent[name] / len(req)}
+    return outs
 
 
-def physdyn_batched(predictor: Predictor, meshes: dict[str, trimesh.Trimesh], req: Requests,
-                    batches: list[np.ndarray], one_object: bool) -> Outcome:
-    """One timed ``Predictor.predict_many`` per batch (indices into ``req``), its meshes new to physdyn:
-    each request with a fresh copy of its mesh, or (``one_object``, a batch of one mesh's pushes) one
-    copy shared by all, prepared once."""
-    out = Outcome.empty(len(req))
-    spent = 0.0
+def physdyn_batched(predictors: dict[str, Predictor], meshes: dict[str, trimesh.Trimesh], req: Requests,
+                    batches: list[np.ndarray], one_object: bool) -> dict[str, Outcome]:
+    """One timed ``Predictor.predict_many`` per batch (indices into ``req``) and predictor, its meshes new
+    to physdyn: each request with a fresh copy of its mesh, or (``one_object``, a batch of one mesh's
+    pushes) one copy shared by all, prepared once. The predictors take turns batch by batch."""
+    outs = {name: Outcome.empty(len(req)) for name in predictors}
+    spent = dict.fromkeys(predictors, 0.0)
     for idx in batches:
-        shared = meshes[req.mesh[idx[0]]].copy()
-        copies = [shared if one_object else meshes[req.mesh[r]].copy() for r in idx]
-        forget_seen_meshes()
-        t0 = CLOCK()
-        results = predictor.predict_many(copies, req.v0[idx], req.w0[idx], seconds=list(req.steps[idx] / predictor.rate_hz),
-                                         orientation_xyzw=req.q0[idx])
-        spent += CLOCK() - t0
-        for r, result in zip(idx, results):
-            out.set(r, result["com_position"], result["orientation_xyzw"], result["toppled"])
-    out.ms = {"batched": 1000 * spent / len(req)}
-    return out
+        for name, predictor in predictors.items():
+            shared = meshes[req.mesh[idx[0]]].copy()
+            copies = [shared if one_object else meshes[req.mesh[r]].copy() for r in idx]
+            forget_seen_meshes()
+            t0 = CLOCK()
+            results = predictor.predict_many(copies, req.v0[idx], req.w0[idx],
+                                             seconds=list(req.steps[idx] / predictor.rate_hz), orientation_xyzw=req.q0[idx])
+            spent[name] += CLOCK() - t0
+            for r, result in zip(idx, results):
+                outs[name].set(r, result["com_position"], result["orientation_xyzw"], result["toppled"])
+    for name, out in outs.items():
+        out.ms = {"batched": 1000 * spent[name] / len(req)}
+    return outs
 
 
 def sliding_outcome(req: Requests) -> Outcome:
@@ -445,7 +456,7 @@ class Progress:
     label: str
     started: float = field(default_factory=time.perf_counter)
 
-    def measure(self, name: str, run: Callable[[], Outcome]) -> Outcome:
+    def measure(self, name: str, run: Callable[[], Any]) -> Any:
         t0 = time.perf_counter()
         with warnings.catch_warnings():  # notes about a mesh (an open surface...) are the user's, not ours
             warnings.simplefilter("ignore")
@@ -462,18 +473,21 @@ def ceiling_variants(predictors: dict[str, Predictor]) -> dict[tuple[str, int], 
     return variants
 
 
+def pybullet_table_rows(req: Requests, outs: dict[int, Outcome]) -> list[dict]:
+    return [make_row(f"PyBullet 1/{hz} s", "pybullet", req, out, hz=hz) for hz, out in outs.items()]
+
+
 def regime_new_meshes(meshes: dict[str, trimesh.Trimesh], req: Requests, worlds: dict[int, PhysicsWorld],
                       predictors: dict[str, Predictor], rate_hz: float, progress: Progress) -> list[dict]:
     """Regime (a): each request a mesh new to the predictor; rows in table order."""
     rows = [make_row("Coulomb sliding (no rotation, no topple)", "baseline", req, sliding_outcome(req))]
-    for hz, world in worlds.items():
-        out = progress.measure(f"PyBullet 1/{hz} s", lambda: pybullet_row(world, meshes, req, rate_hz, True))
-        rows.append(make_row(f"PyBullet 1/{hz} s", "pybullet", req, out, hz=hz))
-    for name, predictor in predictors.items():
-        one = progress.measure(f"{name}, one at a time", lambda: physdyn_one_at_a_time(predictor, meshes, req))
-        batched = progress.measure(f"{name}, batched", lambda: physdyn_batched(predictor, meshes, req, req.rounds(), False))
-        one.ms.update(batched.ms)
-        rows.append(make_row(name, "physdyn", req, one, batched=score(req, batched)))
+    rows += pybullet_table_rows(req, progress.measure("PyBullet, every step", lambda: pybullet_rows(
+        worlds, meshes, req, rate_hz, new_mesh_each=True)))
+    one = progress.measure("physdyn, one at a time", lambda: physdyn_one_at_a_time(predictors, meshes, req))
+    batched = progress.measure("physdyn, batched", lambda: physdyn_batched(predictors, meshes, req, req.rounds(), False))
+    for name in predictors:
+        one[name].ms.update(batched[name].ms)
+        rows.append(make_row(name, "physdyn", req, one[name], batched=score(req, batched[name])))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         bodies = {key: prepare_body(mesh) for key, mesh in meshes.items()}
@@ -488,14 +502,12 @@ def regime_one_mesh(meshes: dict[str, trimesh.Trimesh], req: Requests, worlds: d
                     predictors: dict[str, Predictor], rate_hz: float, progress: Progress) -> list[dict]:
     """Regime (b): many pushes of each of a few meshes; rows in table order."""
     rows = [make_row("Coulomb sliding (no rotation, no topple)", "baseline", req, sliding_outcome(req))]
-    for hz, world in worlds.items():
-        out = progress.measure(f"PyBullet 1/{hz} s", lambda: pybullet_row(world, meshes, req, rate_hz, False))
-        rows.append(make_row(f"PyBullet 1/{hz} s", "pybullet", req, out, hz=hz))
-    for name, predictor in predictors.items():
-        batches = list(req.by_mesh().values())
-        out = progress.measure(f"{name}, predict_many on one mesh",
-                               lambda: physdyn_batched(predictor, meshes, req, batches, True))
-        rows.append(make_row(name, "physdyn", req, out))
+    rows += pybullet_table_rows(req, progress.measure("PyBullet, every step", lambda: pybullet_rows(
+        worlds, meshes, req, rate_hz, new_mesh_each=False)))
+    batches = list(req.by_mesh().values())
+    outs = progress.measure("physdyn, predict_many on one mesh", lambda: physdyn_batched(
+        predictors, meshes, req, batches, one_object=True))
+    rows += [make_row(name, "physdyn", req, out) for name, out in outs.items()]
     return add_cost_ratios(rows)
 
 
