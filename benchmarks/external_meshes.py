@@ -57,17 +57,33 @@ def urdf_scale(urdf: Path) -> float:
     return float(match.group(1)) if match else 1.0
 
 
-def collect_meshes(folder: Path, random_count: int, random_from: int = 0, named: bool = True) -> dict[str, float]:
-    """Write the scaled meshes into ``folder``; returns name -> scale applied. ``random_from``, ``named``:
-    another set of meshes, e.g. random_urdfs 30-89 alone as an external validation set."""
+def pybullet_sources(random_count: int, random_from: int = 0, named: bool = True) -> dict[str, tuple[Path, float]]:
+    """name -> (mesh file, URDF scale): the named objects, then random_urdfs ``random_from`` onwards."""
     root = Path(pybullet_data.getDataPath())
     sources = {name: (root / name, scale) for name, scale in NAMED.items()} if named else {}
     for urdf_dir in sorted((root / "random_urdfs").iterdir())[random_from : random_from + random_count]:
         obj = urdf_dir / f"{urdf_dir.name}.obj"
         sources[f"random_urdfs/{urdf_dir.name}"] = (obj, urdf_scale(urdf_dir / f"{urdf_dir.name}.urdf"))
+    return sources
+
+
+def fit_training_size(mesh: trimesh.Trimesh) -> float:
+    """Scale ``mesh`` in place so its largest extent lies in the training shapes' range (one outside
+    ``SIZE_RANGE`` goes to the nearest end of ``RESCALE_RANGE``); returns the factor applied (1 if none)."""
+    extent = float(mesh.extents.max())
+    if SIZE_RANGE[0] <= extent <= SIZE_RANGE[1]:
+        return 1.0
+    factor = float(np.clip(extent, *RESCALE_RANGE)) / extent
+    mesh.apply_scale(factor)
+    return factor
+
+
+def collect_meshes(folder: Path, random_count: int, random_from: int = 0, named: bool = True) -> dict[str, float]:
+    """Write the scaled meshes into ``folder``; returns name -> scale applied. ``random_from``, ``named``:
+    another set of meshes, e.g. random_urdfs 30-89 alone as an external validation set."""
     folder.mkdir(parents=True, exist_ok=True)
     applied = {}
-    for name, (path, scale) in sources.items():
+    for name, (path, scale) in pybullet_sources(random_count, random_from, named).items():
         if not path.is_file():
             continue
         mesh = trimesh.load(path, force="mesh")
@@ -75,30 +91,36 @@ def collect_meshes(folder: Path, random_count: int, random_from: int = 0, named:
             print(f"skipped {name}: no faces")
             continue
         mesh.apply_scale(scale)
-        extent = float(mesh.extents.max())
-        if not SIZE_RANGE[0] <= extent <= SIZE_RANGE[1]:
-            target = float(np.clip(extent, *RESCALE_RANGE))
-            mesh.apply_scale(target / extent)
-            scale *= target / extent
+        scale *= fit_training_size(mesh)
         out = folder / (name.replace("/", "_").replace(".obj", "") + ".obj")
         mesh.export(out)
         applied[out.name] = scale
     return applied
 
 
+def mesh_folder_store(meshes: Path, store_path: Path, pushes: int, workers: int = 2, overrides: tuple[str, ...] = ()):
+    """The store of ``pushes`` simulations per mesh of the folder ``meshes`` (the ``meshes`` family, the
+    conventions' physics), made at ``store_path`` on first use and read from there after."""
+    try:
+        return load_store(str(store_path))
+    except PhysdynError:  # not made yet, or an interrupted run: make it afresh (it is this script's own)
+        cfg = load_config(DataConfig, None, [f"families.meshes.sims_per_shape={pushes}", f"meshes.dir={meshes}",
+                                             *overrides])
+        generate_dataset(cfg, str(store_path), workers=workers, progress=False, overwrite=True)
+        return load_store(str(store_path))
+
+
 def external_store(work: Path, random_count: int, pushes: int, random_from: int = 0, no_named: bool = False):
     """The simulated store of these meshes under ``work`` (made on first use; ``pushes`` per mesh)."""
     which = f"external_{random_count}x{pushes}" + (f"_from{random_from}" if random_from else "") + ("_unnamed" if no_named else "")
     store_path = work / f"{which}.zarr"
+    # another set of meshes gets a folder of its own (a folder is simulated whole)
+    meshes = work / ("meshes" if not (random_from or no_named) else f"{which}_meshes")
     try:
         return load_store(str(store_path))
-    except PhysdynError:  # not made yet, or an interrupted run: make it afresh (it is this script's own)
-        # another set of meshes gets a folder of its own (a folder is simulated whole)
-        meshes = work / ("meshes" if not (random_from or no_named) else f"{which}_meshes")
+    except PhysdynError:  # not made yet, or an interrupted run: the meshes afresh, then the store
         collect_meshes(meshes, random_count, random_from, not no_named)
-        cfg = load_config(DataConfig, None, [f"families.meshes.sims_per_shape={pushes}", f"meshes.dir={meshes}"])
-        generate_dataset(cfg, str(store_path), workers=2, progress=False, overwrite=True)
-        return load_store(str(store_path))
+    return mesh_folder_store(meshes, store_path, pushes)
 
 
 def main() -> None:

