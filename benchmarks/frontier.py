@@ -26,7 +26,7 @@ Two regimes:
     ``predict_many`` over all requests of the set in rounds of one push of every mesh (batched: ``--meshes``
     new meshes a call); every request gets its own copy, so its mesh is prepared (the files are parsed
     before the timing), and physdyn's content-keyed PyBullet caches are emptied between requests and calls,
-    outside the timing (``forget_seen_meshes``). PyBullet: one world per physics step, reused for the whole
+    outside the timing (``Predictor.forget_meshes``). PyBullet: one world per physics step, reused for the whole
     run; per mesh the body (``prepare_body``: cleaning, hull, mass properties; then its collision shape) is
     built inside the timing, once, and pushed from each step-0 state (velocities set directly, as
     ``simulate_from_state`` does); its cost per request is that build plus one roll-out. The steps take
@@ -364,19 +364,6 @@ def ceiling_row(world: PhysicsWorld, bodies: dict[str, Any], req: Requests, rate
     return out
 
 
-def forget_seen_meshes() -> None:
-    """Make the next request's mesh new to physdyn, outside the timing. Its PyBullet helpers (the simulated
-    start, the roll-out topple classifier) keep each cloud's hull and collision shape, keyed by the cloud's
-    content, so a fresh copy of a mesh met before would skip that work (about 6 ms of the bundled model's).
-    There is no public way to drop them: this empties ``physdyn.sim.cloud_body``'s caches as its own
-    ``CloudSimulator`` does when they are full (a new world per simulator)."""
-    cloud_body._SPECS.clear()
-    for simulator in cloud_body._SHARED.values():
-        simulator.world.close()
-        simulator.world = PhysicsWorld(simulator.physics)
-        simulator._bodies.clear()
-
-
 def physdyn_one_at_a_time(predictors: dict[str, Predictor], meshes: dict[str, trimesh.Trimesh],
                           req: Requests) -> dict[str, Outcome]:
     """``Predictor.predict`` per request, each on a fresh copy of its mesh, new to physdyn, timed; the
@@ -386,7 +373,7 @@ def physdyn_one_at_a_time(predictors: dict[str, Predictor], meshes: dict[str, tr
     for r, key in enumerate(req.mesh):
         for name, predictor in predictors.items():
             mesh = meshes[key].copy()
-            forget_seen_meshes()
+            predictor.forget_meshes()  # outside the timing: the mesh is new to physdyn
             t0 = CLOCK()
             result = predictor.predict(mesh, req.v0[r], req.w0[r], seconds=req.steps[r] / predictor.rate_hz,
                                        orientation_xyzw=req.q0[r])
@@ -408,7 +395,7 @@ def physdyn_batched(predictors: dict[str, Predictor], meshes: dict[str, trimesh.
         for name, predictor in predictors.items():
             shared = meshes[req.mesh[idx[0]]].copy()
             copies = [shared if one_object else meshes[req.mesh[r]].copy() for r in idx]
-            forget_seen_meshes()
+            predictor.forget_meshes()
             t0 = CLOCK()
             results = predictor.predict_many(copies, req.v0[idx], req.w0[idx],
                                              seconds=list(req.steps[idx] / predictor.rate_hz), orientation_xyzw=req.q0[idx])

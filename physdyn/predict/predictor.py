@@ -30,6 +30,7 @@ from physdyn.geometry.mass import vertical_inertia, world_inertia_per_mass
 from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_rotvec
 from physdyn.predict.body import PreparedBody, initial_pose, preparation_key, prepare_body
 from physdyn.predict.simulator import SIMULATOR_NAME, simulate_from_state
+from physdyn.sim.cloud_body import forget_clouds
 from physdyn.sim.trajectory import topple_labels
 
 BUNDLED_CHECKPOINT = Path(__file__).resolve().parents[1] / "assets" / "bundled.ckpt"
@@ -245,6 +246,12 @@ class Predictor:
             results[r]["simulated"] = self._result(sim, sim["topple_label"].astype(np.float64),
                                                    bool(sim["topple_label"].any()), bodies[r], SIMULATOR_NAME)
         return results  # type: ignore[return-value]
+
+    def forget_meshes(self) -> None:
+        """Forget every mesh prepared so far (this predictor's preparations and the process's cloud bodies),
+        so the next request pays for its preparation as a new mesh does (benchmarks/frontier.py)."""
+        self._prepared.clear()
+        forget_clouds()
 
     def _bodies(self, meshes: list, scales: list) -> list[PreparedBody]:
         """Each request's ``PreparedBody``. A mesh this predictor prepared before, in this call or an

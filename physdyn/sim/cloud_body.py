@@ -221,3 +221,14 @@ def shared_simulator(time_step: float = CLOUD_TIME_STEP) -> Iterator[CloudSimula
         if time_step not in _SHARED:
             _SHARED[time_step] = CloudSimulator(time_step=time_step)
         yield _SHARED[time_step]
+
+
+def forget_clouds() -> None:
+    """Drop every cloud body this process keeps (hulls and collision shapes, keyed by content), so the next
+    cloud is built afresh: a benchmark of meshes new to physdyn must not find them prepared."""
+    with _SHARED_LOCK:
+        _SPECS.clear()
+        for simulator in _SHARED.values():
+            simulator.world.close()
+            simulator.world = PhysicsWorld(simulator.physics)
+            simulator._bodies.clear()

@@ -378,6 +378,12 @@ def test_the_preparation_is_cached_by_mesh_content_not_object_identity(checkpoin
     predictor.predict(str(path), LIN, ANG, seconds=1.0)
     assert len(prepared) == 6
 
+    # forget_meshes: the next request is a new mesh again (a benchmark of new meshes counts its preparation)
+    predictor.forget_meshes()
+    again = predictor.predict(twin, LIN, ANG, seconds=1.0)
+    assert len(prepared) == 7
+    np.testing.assert_array_equal(again["com_position"], fresh["com_position"])
+
 
 def test_the_preparation_cache_is_bounded_and_keeps_the_recently_used(checkpoint, monkeypatch):
     import physdyn.predict.predictor as predictor_module
