@@ -308,6 +308,7 @@ def cross_entropy_search(space: PushSpace, rollout: Callable[[np.ndarray, np.nda
     evaluated = rounds = 0
     per_candidate = None
     size = FIRST_ROUND
+    round_seconds: list[float] = []
     while True:
         if per_candidate is not None:
             size = min(POPULATION, int((deadline - time.perf_counter()) / per_candidate))
@@ -343,12 +344,13 @@ def cross_entropy_search(space: PushSpace, rollout: Callable[[np.ndarray, np.nda
         mean = new_mean
         std = np.maximum(0.7 * new_std + 0.3 * std, 0.01)  # smoothed, and never collapsed to a point
         elapsed = time.perf_counter() - t0
+        round_seconds.append(elapsed)
         per_candidate = elapsed / size
         if best["distance"] < 0.25 * SUCCESS_DISTANCE_M and best["turn_miss"] < math.radians(0.25 * SUCCESS_TURN_DEG) \
                 and not (goal.upright and best["toppled"]):
             break  # well inside the tolerance: more rounds only spend the budget
     assert best is not None
-    return {**best, "candidates": evaluated, "rounds": rounds}
+    return {**best, "candidates": evaluated, "rounds": rounds, "round_seconds": round_seconds}
 
 
 def horizon_seconds(speed_max: float, friction: float, gravity: float) -> float:
@@ -410,6 +412,7 @@ def plan_push(predictor: Any, mesh: Any, goal_xy: Any, goal_yaw: Any = None, upr
                                    best["turn_miss"], best["toppled"], best["final_com_position"], best["final_orientation_xyzw"]),
         "goal": goal.as_dict(),
         "budget_s": budget, "elapsed_s": elapsed, "candidates": int(best["candidates"]), "rounds": int(best["rounds"]),
+        "round_s": [float(t) for t in best["round_seconds"]],
         "warm_up_s": warm_up, "model": rollout.name, "horizon_s": seconds,
         "orientation_xyzw": q0, "com_mesh": np.array(body.spec.com_mesh, dtype=np.float64), "mesh": body.name,
         "mesh_scale": body.scale, "rate_hz": predictor.rate_hz, "seed": int(seed),

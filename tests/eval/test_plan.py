@@ -124,9 +124,10 @@ def test_a_box_plan_meets_the_2_cm_15_deg_goal_in_pybullet(predictor, box, seed)
 @pytest.mark.parametrize("model", [None, 1 / 60])
 def test_the_budget_is_respected_and_an_unmet_goal_is_still_answered(predictor, box, model):
     plan = predictor.plan(box, [0.2, -0.3], goal_yaw=170, upright=True, budget_s=0.3, model=model)
-    assert plan["candidates"] >= 1 and plan["rounds"] >= 1
-    # the first round always runs (16 candidates); later ones start only when they end within the budget
-    assert plan["elapsed_s"] < 0.3 + 1.0
+    assert plan["candidates"] >= 1 and plan["rounds"] == len(plan["round_s"]) >= 1
+    # the first round always runs (16 candidates); a later one starts only when its measured cost says it
+    # ends within the budget: the overrun is at most part of one round
+    assert plan["elapsed_s"] <= 0.3 + max(plan["round_s"]) + 0.05
     assert plan["budget_s"] == 0.3 and np.isfinite(plan["predicted"]["miss_m"]) and np.all(np.isfinite(plan["lin_vel"]))
 
 
