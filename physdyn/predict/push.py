@@ -4,8 +4,8 @@ ray meets the surface, and the velocities right after a force over one physics s
 ``PushResponse`` keeps one PyBullet world with the body in it and answers each push by one physics step
 (tens of microseconds), exactly as the dataset generator pushes (``physdyn.sim.trajectory.simulate``).
 The ideal free-body formula (``free_body_velocities``: v = J / m, w = I^-1 (r x J)) ignores the ground,
-which pushes back while the force acts: on 200 generator pushes of external meshes it was within 0.4 %
-of PyBullet's horizontal velocity and yaw rate at the median, but off by 4.5 % (horizontal speed) and
+which pushes back while the force acts: on 200 generator pushes of external meshes it was within 0.4 % (speed)
+and 0.6 % (yaw rate) of PyBullet's at the median, but off by 4.5 % (horizontal speed) and
 16 % (yaw rate) at the 90th percentile and by 0.76 rad/s (median) in tilt rate, the part that decides a
 topple (docs/plan.md, "The push"). So the step is taken, not the formula.
 """
@@ -50,6 +50,8 @@ class PushResponse:
         self.world = PhysicsWorld(physics or PhysicsConfig())
         self.body = self.world.add_body(spec)
         self.com = place_at_rest(self.world, self.body, spec, self.orientation_xyzw)
+        # PyBullet's base frame is the principal frame (``place_at_rest``): kept to reset it cheaply per push
+        self._base_pose = pb.getBasePositionAndOrientation(self.body, physicsClientId=self.world.client)
         vertices = spec.body_vertices() @ quat_to_matrix(self.orientation_xyzw).T + self.com
         self.top = float(vertices[:, 2].max())  # height of the highest point, m
         self._vertices = vertices
@@ -105,7 +107,9 @@ class PushResponse:
         return lin, ang
 
     def _rest(self) -> None:
-        place_at_rest(self.world, self.body, self.spec, self.orientation_xyzw)
+        cid = self.world.client
+        pb.resetBasePositionAndOrientation(self.body, *self._base_pose, physicsClientId=cid)
+        pb.resetBaseVelocity(self.body, [0, 0, 0], [0, 0, 0], physicsClientId=cid)
 
     def close(self) -> None:
         self.world.close()
