@@ -253,6 +253,30 @@ class Predictor:
         self._prepared.clear()
         forget_clouds()
 
+    def plan(self, mesh: Any, goal_xy: Any, goal_yaw: Any = None, upright: bool = False, budget_s: float = 1.0,
+             scale: float = 1.0, orientation_xyzw: Any = None, seed: int = 0, speed_min: float | None = None,
+             speed_max: float | None = None, height_fraction: float | None = None, lateral_fraction: float | None = None,
+             verify: bool = False, model: Any = None) -> dict[str, Any]:
+        """The push that moves ``mesh`` (placed as ``predict`` places it) by ``goal_xy`` (2,) m on the plane,
+        turned by ``goal_yaw`` degrees about the vertical (counter-clockwise from above positive; None: any
+        turn), not toppled if ``upright``: a cross-entropy search over the push point (height band, sideways
+        offset), direction and speed, each round's candidates rolled out as one batch, for ``budget_s``
+        seconds of wall clock (``planner.py``). Bounds default to the training pushes' (``ImpulseConfig``).
+        A goal not met within the budget is still answered: the best push and its predicted miss.
+
+        Returns ``lin_vel``, ``ang_vel`` (3,) world frame (what ``predict`` takes), ``push_point``,
+        ``push_direction``, ``push_speed``, ``push_impulse``, ``predicted`` (the trajectory keys, the final
+        pose, ``miss_m``, ``miss_yaw_deg``, ``met``), ``goal``, ``budget_s``, ``elapsed_s``, ``candidates``,
+        ``rounds`` and the inputs (docs/plan.md); ``verify=True`` adds ``verified``: PyBullet at the
+        conventions' step from the same start, a check the search never sees. ``model``: a PyBullet time
+        step in seconds (e.g. 1/240) to search with PyBullet instead of this predictor's model.
+        Bad goals (not finite, beyond the speed bounds' reach) and budgets raise ``PredictionError``.
+        """
+        from physdyn.predict.planner import plan_push  # the planner builds on this class's roll-outs
+
+        return plan_push(self, mesh, goal_xy, goal_yaw, upright, budget_s, scale, orientation_xyzw, seed, speed_min,
+                         speed_max, height_fraction, lateral_fraction, verify, model)
+
     def _bodies(self, meshes: list, scales: list) -> list[PreparedBody]:
         """Each request's ``PreparedBody``. A mesh this predictor prepared before, in this call or an
         earlier one, is not prepared again: the same file (path, size, modification time) or a mesh of the
