@@ -17,6 +17,7 @@ from physdyn.errors import ConfigError, ShapeError
 from physdyn.files import progress_bar
 from physdyn.geometry.sampling import open3d
 from physdyn.sim.generate import SimulatedBlock, config_hash, plan, simulate_blocks
+from physdyn.write_lock import write_lock
 
 FORMAT_NOTE = "physdyn dataset; layout in docs/dataset-format.md"
 
@@ -42,6 +43,13 @@ def generate_dataset(cfg: DataConfig, out: str, workers: int = 1, executor: str 
     started = time.time()
     blocks, categories = plan(cfg)
     chash = config_hash(cfg)
+    with write_lock(out):  # one writer per store: a second one, --resume included, is refused naming the first
+        return _generate_locked(cfg, out, blocks, categories, chash, workers, executor, resume, overwrite, progress,
+                                started)
+
+
+def _generate_locked(cfg: DataConfig, out: str, blocks, categories, chash: str, workers: int, executor: str,
+                     resume: bool, overwrite: bool, progress: bool, started: float) -> GenerationReport:
     if resume:
         return _generate(cfg, out, blocks, categories, chash, workers, executor, True, progress, started)
     with replacing_store(out, overwrite) as target:  # a failed --overwrite leaves the old store as it was
