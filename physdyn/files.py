@@ -62,6 +62,16 @@ def save_figure_atomic(fig, path: str | Path, **kwargs: Any) -> None:
         fig.savefig(tmp, **kwargs)
 
 
+def remove_stale_temporaries(folder: str | Path, names: tuple[str, ...]) -> None:
+    """Delete what ``atomic_output`` left of ``names`` in ``folder`` when a writer was killed mid-write
+    (``.NAME.XXXXXXXX<suffix>``). Only for a writer that holds the folder's lock (physdyn.write_lock): another
+    writer's temporary file could otherwise be in use."""
+    for name in names:
+        for leftover in Path(folder).glob(f".{name}.*"):
+            if leftover.is_file():
+                leftover.unlink(missing_ok=True)
+
+
 def _fsync_file(name: str | Path) -> None:
     fd = os.open(name, os.O_RDONLY)
     try:

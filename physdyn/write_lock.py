@@ -67,18 +67,34 @@ def write_lock(target: str | Path, command: str | None = None) -> Iterator[Path 
         _release(fd, lock)
 
 
+def refuse_if_busy(target: str | Path) -> None:
+    """Raise ``WriterBusyError`` now if another process holds ``target``'s lock; takes nothing and creates
+    nothing. For a writer's first lines: refused before it spends minutes loading its inputs (the lock itself
+    is taken later, where writing starts)."""
+    path = local_path(target)
+    if path is None:
+        return
+    try:
+        fd = os.open(lock_path(path), os.O_RDONLY)
+    except OSError:
+        return  # no lock file: nobody is writing (or we cannot tell; taking the lock will say)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as exc:
+        if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+            raise WriterBusyError(f"{path} is being written by {_holder(lock_path(path))}; wait for it or stop it") from None
+    finally:
+        os.close(fd)  # closing drops the probe's lock, if it got one
+
+
 def _acquire(target: Path, command: str | None) -> tuple[int, Path]:
     lock = lock_path(target)
     lock.parent.mkdir(parents=True, exist_ok=True)
     while True:
         fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)  # not inherited by exec'd children (PEP 446)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError as exc:
+        if not _try_lock(fd):
             os.close(fd)
-            if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
-                raise WriterBusyError(f"{target} is being written by {_holder(lock)}; wait for it or stop it") from None
-            raise
+            raise WriterBusyError(f"{target} is being written by {_holder(lock)}; wait for it or stop it")
         # The holder before us may have removed the file on release after we opened it: then we hold a lock on
         # a file no one else can find. Try again on the file now at that path.
         try:
@@ -102,6 +118,21 @@ def _command_line(limit: int = 100) -> str:
         return ""
     line = " ".join([Path(sys.argv[0]).name] + sys.argv[1:])
     return line if len(line) <= limit else line[: limit - 3] + "..."
+
+
+def _try_lock(fd: int, tries: int = 10) -> bool:
+    """Take the lock without waiting for a writer; a few short retries ride out another process's
+    ``refuse_if_busy`` probe, which holds it for microseconds."""
+    for attempt in range(tries):
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return True
+        except OSError as exc:
+            if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                raise
+            if attempt < tries - 1:
+                time.sleep(0.02)
+    return False
 
 
 def _release(fd: int, lock: Path) -> None:

@@ -256,11 +256,12 @@ def test_lightning_checkpoints_are_written_beside_their_name_then_renamed(tmp_pa
     io.save_checkpoint({"global_step": 1, "state_dict": {"w": torch.ones(3)}}, target)
     assert io.load_checkpoint(target)["global_step"] == 1
 
-    def full_disk(obj, f, *args, **kwargs):
-        Path(f).write_bytes(b"trunc")
+    def full_disk(self, data):  # half the bytes reach the disk, then it is full
+        with open(self, "wb") as fh:
+            fh.write(bytes(data)[: len(data) // 2])
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(torch, "save", full_disk)
+    monkeypatch.setattr(Path, "write_bytes", full_disk)
     with pytest.raises(OutputWriteError, match=f"cannot write {target}: No space left on device; the previous"):
         io.save_checkpoint({"global_step": 2, "state_dict": {}}, target)
     monkeypatch.undo()

@@ -29,9 +29,9 @@ from torch.utils.data import DataLoader, TensorDataset
 from physdyn.config import OptimConfig, PretrainConfig, PretrainDataConfig, load_config, to_dict
 from physdyn.errors import ConfigError, ShapeError
 from physdyn.geometry.sampling import sample_surface_points
-from physdyn.models.checkpoint_file import read_torch_file
+from physdyn.models.checkpoint_file import read_torch_file, write_torch_file
 from physdyn.models.optimizer import adam_with_schedule
-from physdyn.files import atomic_output, write_text_atomic
+from physdyn.files import write_text_atomic
 from physdyn.models.run_directory import (
     FINISHED, is_global_zero_process, prepare_run_directory, run_directory, save_config_yaml,
 )
@@ -197,8 +197,8 @@ def load_pretrain_config(path, overrides: list[str] | None = None) -> PretrainCo
 
 def save_encoder(encoder: nn.Module, name: str, params: dict, classes: list[str], path: Path) -> None:
     state = {k: v.detach().cpu() for k, v in encoder.state_dict().items()}
-    with atomic_output(path, suffix=".pt") as tmp:  # a crash keeps the previous encoder.pt, never half of one
-        torch.save({"encoder": name, "params": params, "state_dict": state, "classes": classes}, tmp)
+    # a crash keeps the previous encoder.pt, never half of one
+    write_torch_file({"encoder": name, "params": params, "state_dict": state, "classes": classes}, path)
 
 
 def pretrain(config: PretrainConfig, overwrite: bool = False) -> PretrainResult:

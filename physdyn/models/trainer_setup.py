@@ -12,7 +12,6 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-import torch
 from lightning import Trainer
 from lightning.pytorch.callbacks import ProgressBar, TQDMProgressBar
 from lightning.pytorch.loggers import CSVLogger, TensorBoardLogger
@@ -22,7 +21,7 @@ from lightning.pytorch.plugins import TorchCheckpointIO
 
 from physdyn.errors import ConfigError
 from physdyn.files import atomic_output
-from physdyn.models.checkpoint_file import read_torch_file
+from physdyn.models.checkpoint_file import read_torch_file, write_torch_file
 
 # Trainer arguments physdyn sets itself from other config keys.
 RESERVED_TRAINER_KEYS = {
@@ -183,8 +182,7 @@ class SafeCheckpointIO(TorchCheckpointIO):
             raise TypeError("physdyn's checkpoint writer takes no storage_options")
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_output(path, suffix=".ckpt") as tmp:
-            torch.save(checkpoint, tmp)
+        write_torch_file(checkpoint, path)
 
     def load_checkpoint(self, path, map_location=None, weights_only=None) -> dict[str, Any]:
         return read_torch_file(path, "a .ckpt written by `physdyn fit`")

@@ -33,8 +33,8 @@ from physdyn.models.run_directory import (
 )
 from physdyn.models.trainer_setup import build_trainer, ignore_lightning_noise, validate_trainer_args
 from physdyn.registry import ENCODERS, HEADS, PREDICTORS
-from physdyn.write_lock import write_lock
-from physdyn.files import write_text_atomic
+from physdyn.write_lock import refuse_if_busy, write_lock
+from physdyn.files import remove_stale_temporaries, write_text_atomic
 
 
 @dataclass
@@ -115,6 +115,8 @@ def fit(config: ExperimentConfig, resume: bool = False, overwrite: bool = False,
 
     cfg = validate_experiment_config(config)
     out_dir = run_directory(cfg)
+    if is_global_zero_process():
+        refuse_if_busy(out_dir)  # another fit on this folder: say so now, not after loading the store
     ckpt_path: Path | None = Path(cfg.ckpt_path) if cfg.ckpt_path else None
     if ckpt_path is None and resume:
         ckpt_path = out_dir / "last.ckpt"
@@ -165,6 +167,8 @@ def _train(cfg: ExperimentConfig, out_dir: Path, model: DynamicsModel, datamodul
            ckpt_path: Path | None, resume: bool, overwrite: bool, resumed_step: int | None) -> FitResult:
     prepare_run_directory(out_dir, resume=resume or ckpt_path is not None, overwrite=overwrite and ckpt_path is None)
     out_dir.mkdir(parents=True, exist_ok=True)
+    if is_global_zero_process():  # the lock's holder: no other writer's temporary file can be in use
+        remove_stale_temporaries(out_dir, ("best.ckpt", "last.ckpt", "config.yaml", FINISHED))  # a killed run's
     save_config_yaml(cfg, out_dir / "config.yaml")
 
     checkpoint = ModelCheckpoint(
