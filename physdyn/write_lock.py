@@ -116,7 +116,8 @@ def _acquire(target: Path, command: str | None) -> tuple[int, Path]:
 def _command_line(limit: int = 100) -> str:
     if not sys.argv or not sys.argv[0]:
         return ""
-    line = " ".join([Path(sys.argv[0]).name] + sys.argv[1:])
+    program = "physdyn" if "physdyn" in sys.argv[0] else Path(sys.argv[0]).name  # `python -m physdyn.cli` too
+    line = " ".join([program] + sys.argv[1:])
     return line if len(line) <= limit else line[: limit - 3] + "..."
 
 

@@ -269,6 +269,35 @@ def test_lightning_checkpoints_are_written_beside_their_name_then_renamed(tmp_pa
     _no_temporaries(tmp_path, {"last.ckpt"})
 
 
+@pytest.mark.slow  # two small simulations: ~10 s
+def test_a_run_killed_while_removing_its_parts_is_completed_by_resume(tmp_path, monkeypatch):
+    """Found by the kill -9 suite: a kill inside finalize, after the final arrays were written, while the
+    parts were being deleted, left parts marked done without their arrays; --resume then crashed with
+    KeyError 'frames/com_position'. Now the written arrays are kept and the store is only marked complete."""
+    from physdyn.data.simulated_store import generate_dataset
+    from physdyn.data.store import StoreWriter, load_store
+    from tests.sim.test_generate import assert_same_arrays
+
+    out = tmp_path / "s.zarr"
+    real_delete = StoreWriter._delete
+
+    def killed_mid_delete(self, name):
+        if name == "_parts":
+            real_delete(self, "_parts/000001/frames")  # some of the parts' arrays are gone...
+            raise KeyboardInterrupt  # ...when the process dies
+        real_delete(self, name)
+
+    with monkeypatch.context() as patch:
+        patch.setattr(StoreWriter, "_delete", killed_mid_delete)
+        with pytest.raises(KeyboardInterrupt):
+            generate_dataset(five_shape_config(), str(out), progress=False, workers=1)
+    report = generate_dataset(five_shape_config(), str(out), resume=True, progress=False, workers=1)
+    assert report.num_shapes == 5 and report.blocks_resumed == 5
+    ref = tmp_path / "ref.zarr"
+    generate_dataset(five_shape_config(), str(ref), progress=False, workers=1)
+    assert_same_arrays(load_store(out), load_store(ref))
+
+
 # --- end to end, two real commands (slow) ------------------------------------------------------------------
 
 PAUSED_SIMULATE = """

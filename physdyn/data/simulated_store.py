@@ -77,6 +77,8 @@ def _generate(cfg: DataConfig, out: str, blocks, categories, chash: str, workers
             "num_blocks": len(blocks),
         }
         writer = StoreWriter.create(out, attrs)
+    if resume and writer.arrays_written:  # killed while it removed the parts: only marking it complete is left
+        return _completed(writer, len(blocks), started)
     done = writer.done_blocks(len(blocks))
     work = [(b, tasks) for b, tasks in enumerate(blocks) if b not in done]
     sims_of = lambda tasks: sum(cfg.families[t.family].sims_per_shape for t in tasks)  # noqa: E731
@@ -96,6 +98,18 @@ def _generate(cfg: DataConfig, out: str, blocks, categories, chash: str, workers
     report = _finalize(cfg, writer, len(blocks), categories)
     report.seconds = time.time() - started
     report.blocks_resumed = len(done)
+    return report
+
+
+def _completed(writer: StoreWriter, num_blocks: int, started: float) -> GenerationReport:
+    writer.complete()
+    group, attrs = writer.group, dict(writer.group.attrs)
+    report = GenerationReport(
+        out=writer.url, num_shapes=int(group["shapes/mass"].shape[0]), num_sims=int(group["sims/shape_id"].shape[0]),
+        num_frames=int(group["sims/start"][-1]), skipped=attrs.get("skipped", []), warnings=attrs.get("notes", []),
+    )
+    report.seconds = time.time() - started
+    report.blocks_resumed = num_blocks
     return report
 
 

@@ -227,6 +227,16 @@ class StoreWriter:
         # A missing chunk reads back as fill values without any error: checksums make corruption visible.
         checksums = {key: checksum(value) for key, value in arrays.items()}
         self.group.attrs.update({**jsonable(attrs), "checksums": checksums, "arrays_written": True})
+        self.complete()
+
+    @property
+    def arrays_written(self) -> bool:
+        """Whether ``finalize`` wrote every final array (and their checksums): a run killed after that, while
+        it removed the parts, is finished by ``complete`` alone. Its parts may be half-deleted by then."""
+        return bool(self.group.attrs.get("arrays_written"))
+
+    def complete(self) -> None:
+        """Drop the parts, then mark the store complete (only after ``finalize`` wrote the final arrays)."""
         self._delete(PARTS)
         self.group.attrs["complete"] = True
         with warnings.catch_warnings():
