@@ -1,5 +1,9 @@
 """User-facing errors: raised where bad input enters, printed by the CLI as one line."""
 
+from __future__ import annotations
+
+from pathlib import Path
+
 
 class PhysdynError(Exception):
     """An error the user can fix. The message names the problem and the fix, on one line."""
@@ -27,3 +31,23 @@ class PredictionWarning(UserWarning):
 
 class CheckpointError(PhysdynError):
     """A checkpoint path that is missing or does not hold a physdyn DynamicsModel."""
+
+
+class OutputWriteError(PhysdynError, OSError):
+    """An output that could not be written (a full disk, an I/O error); the message names the user's path
+    and says that the previous file, if any, is unchanged. Still an ``OSError`` for code that catches those."""
+
+    @classmethod
+    def of(cls, exc: OSError, path) -> OutputWriteError:
+        path = Path(path)
+        kept = "the previous file is unchanged" if path.exists() else "nothing was written"
+        err = cls(f"cannot write {path}: {exc.strerror or exc}; {kept}")
+        err.errno, err.strerror, err.filename = exc.errno, exc.strerror, str(path)
+        return err
+
+    def __str__(self) -> str:
+        return str(self.args[0])
+
+
+class WriterBusyError(PhysdynError):
+    """Another live process is writing the same store or run folder (see physdyn/write_lock.py)."""

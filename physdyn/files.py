@@ -13,23 +13,85 @@ from typing import Any, Iterator
 
 from tqdm import tqdm
 
-from physdyn.errors import PhysdynError
+from physdyn.errors import OutputWriteError, PhysdynError
 
 
 @contextlib.contextmanager
 def atomic_output(path: str | Path, suffix: str = ".part") -> Iterator[Path]:
-    """Yield a temporary path in ``path``'s folder; when the block ends it replaces ``path`` in one rename,
-    and if the block raises it is deleted. ``suffix`` lets writers that go by the extension (GIF, MP4) see it."""
+    """Yield a temporary path in ``path``'s folder for the block to write; when the block ends the file is
+    flushed to disk (fsync) and replaces ``path`` in one rename, and the folder's entry is synced too. A crash
+    or a full disk at any moment leaves the previous ``path`` (or none), never a half-written one; if the block
+    raises, the temporary file is deleted. ``suffix`` lets writers that go by the extension (GIF, MP4) see it.
+
+    An ``OSError`` (a full disk, an I/O error) comes out as ``OutputWriteError``, naming ``path``, not the
+    temporary file."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    except OSError as exc:
+        raise OutputWriteError.of(exc, path) from None
     os.close(fd)
     os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes it owner-only; the output should read like any new file
     try:
         yield Path(tmp)
+        _fsync_file(tmp)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         Path(tmp).unlink(missing_ok=True)
+        if isinstance(exc, OSError) and not isinstance(exc, OutputWriteError):
+            raise OutputWriteError.of(exc, path) from None
         raise
+    _fsync_folder(path.parent)
+
+
+def write_bytes_atomic(path: str | Path, data: bytes) -> None:
+    """``Path(path).write_bytes(data)``, but whole or not at all (see ``atomic_output``)."""
+    with atomic_output(path) as tmp:
+        tmp.write_bytes(data)
+
+
+def write_text_atomic(path: str | Path, text: str) -> None:
+    """``Path(path).write_text(text)`` (UTF-8), but whole or not at all (see ``atomic_output``)."""
+    write_bytes_atomic(path, text.encode("utf-8"))
+
+
+def save_figure_atomic(fig, path: str | Path, **kwargs: Any) -> None:
+    """``fig.savefig(path)``, whole or not at all; the format comes from ``path``'s extension."""
+    path = Path(path)
+    with atomic_output(path, suffix=path.suffix) as tmp:
+        fig.savefig(tmp, **kwargs)
+
+
+def remove_stale_temporaries(folder: str | Path, names: tuple[str, ...]) -> None:
+    """Delete what ``atomic_output`` left of ``names`` in ``folder`` when a writer was killed mid-write
+    (``.NAME.XXXXXXXX<suffix>``). Only for a writer that holds the folder's lock (physdyn.write_lock): another
+    writer's temporary file could otherwise be in use."""
+    for name in names:
+        for leftover in Path(folder).glob(f".{name}.*"):
+            if leftover.is_file():
+                leftover.unlink(missing_ok=True)
+
+
+def _fsync_file(name: str | Path) -> None:
+    fd = os.open(name, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _fsync_folder(folder: Path) -> None:
+    """Make a rename in ``folder`` durable. Some file systems cannot sync a folder: the rename still happened."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
 
 
 def _umask() -> int:

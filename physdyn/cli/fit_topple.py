@@ -38,12 +38,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import torch
-
     from physdyn.data.store import load_store
     from physdyn.eval.baselines import checkpoint_and_store
-    from physdyn.files import atomic_output, check_writable
-    from physdyn.models.checkpoint_file import read_checkpoint
+    from physdyn.files import check_writable
+    from physdyn.models.checkpoint_file import read_checkpoint, write_torch_file
     from physdyn.models.topple_classifier import fit_topple_classifier
 
     out = Path(args.out)
@@ -66,8 +64,7 @@ def run(args: argparse.Namespace) -> int:
     raw = read_checkpoint(args.checkpoint)
     raw["topple_classifier"] = classifier.to_dict()
     out.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_output(out, suffix=".ckpt") as tmp:
-        torch.save(raw, tmp)
+    write_torch_file(raw, out)
     print(f"topple classifier on {data}: validation accuracy {report['val_accuracy']:.3f} (always 'no': "
           f"{report['val_majority']:.3f}), training {report['train_accuracy']:.3f}, over "
           f"{report['train_sequences']} training sequences")

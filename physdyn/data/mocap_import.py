@@ -35,6 +35,7 @@ from physdyn.errors import PhysdynError, StoreError
 from physdyn.geometry.rotations import canonical_quat, continuous_quat, quat_to_matrix, world_delta_rotvec
 from physdyn.sim.synthetic_trials import CSV_HEADER, TrackedShape
 from physdyn.sim.trajectory import topple_labels
+from physdyn.write_lock import write_lock
 
 COLUMNS = tuple(CSV_HEADER.split(","))
 FORMAT_NOTE = "physdyn dataset imported from motion capture; layout in docs/dataset-format.md, import in docs/real-world.md"
@@ -368,8 +369,9 @@ def import_mocap(inputs: list[str | Path] | str | Path, out: str | Path, shape: 
         "trials": per_trial,
         "skipped": skipped,
     }
-    writer = StoreWriter.create(out, attrs, overwrite=overwrite)
-    writer.finalize(arrays, {}, group_attrs={"shapes": {"category_names": [settings.category]}})
+    with write_lock(out):  # one writer per store: a second import (or simulate) to ``out`` is refused meanwhile
+        writer = StoreWriter.create(out, attrs, overwrite=overwrite)
+        writer.finalize(arrays, {}, group_attrs={"shapes": {"category_names": [settings.category]}})
     return ImportReport(out=str(out), trials=per_trial, skipped=skipped, rate_hz=settings.rate_hz, input_rates_hz=rates,
                         num_frames=int(arrays["sims/start"][-1]), seconds=_time.time() - started)
 

@@ -17,6 +17,7 @@ from physdyn.errors import ConfigError, ShapeError
 from physdyn.files import progress_bar
 from physdyn.geometry.sampling import open3d
 from physdyn.sim.generate import SimulatedBlock, config_hash, plan, simulate_blocks
+from physdyn.write_lock import write_lock
 
 FORMAT_NOTE = "physdyn dataset; layout in docs/dataset-format.md"
 
@@ -42,6 +43,13 @@ def generate_dataset(cfg: DataConfig, out: str, workers: int = 1, executor: str 
     started = time.time()
     blocks, categories = plan(cfg)
     chash = config_hash(cfg)
+    with write_lock(out):  # one writer per store: a second one, --resume included, is refused naming the first
+        return _generate_locked(cfg, out, blocks, categories, chash, workers, executor, resume, overwrite, progress,
+                                started)
+
+
+def _generate_locked(cfg: DataConfig, out: str, blocks, categories, chash: str, workers: int, executor: str,
+                     resume: bool, overwrite: bool, progress: bool, started: float) -> GenerationReport:
     if resume:
         return _generate(cfg, out, blocks, categories, chash, workers, executor, True, progress, started)
     with replacing_store(out, overwrite) as target:  # a failed --overwrite leaves the old store as it was
@@ -69,6 +77,8 @@ def _generate(cfg: DataConfig, out: str, blocks, categories, chash: str, workers
             "num_blocks": len(blocks),
         }
         writer = StoreWriter.create(out, attrs)
+    if resume and writer.arrays_written:  # killed while it removed the parts: only marking it complete is left
+        return _completed(writer, len(blocks), started)
     done = writer.done_blocks(len(blocks))
     work = [(b, tasks) for b, tasks in enumerate(blocks) if b not in done]
     sims_of = lambda tasks: sum(cfg.families[t.family].sims_per_shape for t in tasks)  # noqa: E731
@@ -88,6 +98,18 @@ def _generate(cfg: DataConfig, out: str, blocks, categories, chash: str, workers
     report = _finalize(cfg, writer, len(blocks), categories)
     report.seconds = time.time() - started
     report.blocks_resumed = len(done)
+    return report
+
+
+def _completed(writer: StoreWriter, num_blocks: int, started: float) -> GenerationReport:
+    writer.complete()
+    group, attrs = writer.group, dict(writer.group.attrs)
+    report = GenerationReport(
+        out=writer.url, num_shapes=int(group["shapes/mass"].shape[0]), num_sims=int(group["sims/shape_id"].shape[0]),
+        num_frames=int(group["sims/start"][-1]), skipped=attrs.get("skipped", []), warnings=attrs.get("notes", []),
+    )
+    report.seconds = time.time() - started
+    report.blocks_resumed = num_blocks
     return report
 
 

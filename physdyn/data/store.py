@@ -59,13 +59,13 @@ def _is_url(url: str) -> bool:
     return "://" in str(url)
 
 
-def _open(url: str | Path, mode: str) -> zarr.Group:
+def _open(url: str | Path, mode: str, attributes: dict | None = None) -> zarr.Group:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             # fsspec's local filesystem does not create parent folders unless asked.
             options = {"auto_mkdir": True} if str(url).startswith("file://") else None
-            return zarr.open_group(str(url), mode=mode, zarr_format=3, storage_options=options)
+            return zarr.open_group(str(url), mode=mode, zarr_format=3, storage_options=options, attributes=attributes)
     except (FileNotFoundError, zarr.errors.GroupNotFoundError):
         raise StoreError(f"no dataset store at {url}; create one with `physdyn simulate`") from None
     except Exception as exc:
@@ -164,8 +164,9 @@ class StoreWriter:
             if not _is_physdyn_store(url):
                 raise StoreError(f"{url} exists and is not a physdyn store; refusing to delete it, choose another --out")
             remove_store(url)
-        group = _open(url, "w")
-        group.attrs.update({**jsonable(attrs), "physdyn_format": FORMAT_VERSION, "complete": False})
+        # The attributes go into the group's first metadata write: a run killed at once leaves a store that
+        # --resume and --overwrite recognise as physdyn's, never a bare group that both refuse.
+        group = _open(url, "w", {**jsonable(attrs), "physdyn_format": FORMAT_VERSION, "complete": False})
         return cls(group, str(url))
 
     @classmethod
@@ -226,6 +227,16 @@ class StoreWriter:
         # A missing chunk reads back as fill values without any error: checksums make corruption visible.
         checksums = {key: checksum(value) for key, value in arrays.items()}
         self.group.attrs.update({**jsonable(attrs), "checksums": checksums, "arrays_written": True})
+        self.complete()
+
+    @property
+    def arrays_written(self) -> bool:
+        """Whether ``finalize`` wrote every final array (and their checksums): a run killed after that, while
+        it removed the parts, is finished by ``complete`` alone. Its parts may be half-deleted by then."""
+        return bool(self.group.attrs.get("arrays_written"))
+
+    def complete(self) -> None:
+        """Drop the parts, then mark the store complete (only after ``finalize`` wrote the final arrays)."""
         self._delete(PARTS)
         self.group.attrs["complete"] = True
         with warnings.catch_warnings():

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from physdyn.errors import PhysdynError
-from physdyn.files import check_writable, jsonable
+from physdyn.files import check_writable, jsonable, save_figure_atomic, write_text_atomic
 
 from physdyn.eval.metrics import ERROR_KEYS
 
@@ -123,7 +123,7 @@ def plot_error_vs_time(comparison: dict, path: Path, group: str = "non_toppling"
         caption += "; " + "; ".join(sorted(notes))
     fig.text(0.5, 0.01, caption, ha="center", fontsize=8, color="#444")
     fig.tight_layout(rect=(0, 0.04, 1, 1))
-    fig.savefig(path, dpi=100)
+    save_figure_atomic(fig, path, dpi=100)
     plt.close(fig)
 
 
@@ -148,7 +148,7 @@ def plot_errors_per_category(comparison: dict, path: Path) -> None:
         ax.set_title(f"{key} ({UNITS[key]})")
     axes[0].legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save_figure_atomic(fig, path, dpi=100)
     plt.close(fig)
 
 
@@ -175,8 +175,9 @@ def write_report(comparison: dict, out_dir: str | Path, overwrite: bool = False)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {key: out / name for key, name in REPORT_FILES.items()}
-    paths["metrics"].write_text(json.dumps(jsonable(comparison, nan_as_null=True), indent=1))
-    paths["report"].write_text(markdown(comparison))
+    # Each file whole or not at all; metrics.json last, so a folder that has it has the whole report.
     plot_error_vs_time(comparison, paths["error_vs_time"])
     plot_errors_per_category(comparison, paths["per_category"])
+    write_text_atomic(paths["report"], markdown(comparison))
+    write_text_atomic(paths["metrics"], json.dumps(jsonable(comparison, nan_as_null=True), indent=1))
     return paths

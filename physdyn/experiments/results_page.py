@@ -13,6 +13,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from physdyn.errors import PhysdynError
+from physdyn.files import save_figure_atomic, write_text_atomic
 from physdyn.eval.report import CURVE_MIN_SEQUENCES, UNITS, curve_end, draw_error_curves
 from physdyn.eval.report import fmt_number as _num
 from physdyn.experiments.suite import (BASELINES, CATEGORIES, FRICTION_WARM_STARTS, MANIFEST, RUN_FILE, SCALES,
@@ -286,7 +287,7 @@ def _plot_curves(series: list[tuple[str, dict | None]], path: Path, title: str) 
              f"curve ends where fewer than a quarter of them, or {CURVE_MIN_SEQUENCES}, remain", ha="center",
              fontsize=8, color="0.35")
     fig.tight_layout(rect=(0, 0.04, 1, 1))
-    fig.savefig(path, dpi=100)
+    save_figure_atomic(fig, path, dpi=100)
     plt.close(fig)
     return True
 
@@ -314,7 +315,7 @@ def _plot_generalisation(res: _Results, path: Path) -> bool:
         ax.set_title(f"roll-out {SHORT[key]} error ({UNITS[key]}/step), non-toppling")
     axes[0].legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save_figure_atomic(fig, path, dpi=100)
     plt.close(fig)
     return True
 
@@ -381,5 +382,5 @@ def write_results(out: str | Path, results: str | Path, command: str = "") -> Pa
     lines += _section_topple(res)
     lines += _section_pretraining(res)
     lines += _section_runs(res)
-    results.write_text("\n".join(lines))
+    write_text_atomic(results, "\n".join(lines))
     return results

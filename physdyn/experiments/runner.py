@@ -24,6 +24,7 @@ from physdyn.config import to_dict
 from physdyn.data.simulated_store import generate_dataset
 from physdyn.data.store import load_store, store_exists
 from physdyn.errors import PhysdynError
+from physdyn.files import write_text_atomic
 from physdyn.eval.baselines import load_checkpoint
 from physdyn.eval.evaluate import compare
 from physdyn.eval.report import write_report
@@ -33,6 +34,7 @@ from physdyn.experiments.suite import (MANIFEST, RUN_FILE, RunSpec, ScaleConfig,
                                        store_path, utc_now)
 from physdyn.models.pretrain import pretrain
 from physdyn.models.training import fit
+from physdyn.write_lock import write_lock
 
 @dataclass
 class RunOutcome:
@@ -71,7 +73,7 @@ def _manifest(out: Path, scale: ScaleConfig, scale_file: Path, command: str, onl
                            f"or pass --scale {data['scale']}")
     data["invocations"].append({"command": command, "date": utc_now(), "only": list(only or []), "hardware": hardware()})
     Path(out).mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(data, indent=1))
+    write_text_atomic(path, json.dumps(data, indent=1))
 
 
 def _record_runs_done(out: Path, done: int) -> None:
@@ -80,7 +82,7 @@ def _record_runs_done(out: Path, done: int) -> None:
     path = Path(out) / MANIFEST
     data = json.loads(path.read_text())
     data["invocations"][-1]["runs_done"] = done
-    path.write_text(json.dumps(data, indent=1))
+    write_text_atomic(path, json.dumps(data, indent=1))
 
 
 class SuiteRunner:
@@ -111,8 +113,9 @@ class SuiteRunner:
             wall = time.time() - started
             d = run_dir(self.out, spec)
             d.mkdir(parents=True, exist_ok=True)
-            (d / RUN_FILE).write_text(json.dumps({"name": spec.name, "kind": spec.kind, "scale": self.scale.name,
-                                                  "wall_s": wall, "resumed": resumed, "finished": utc_now()}, indent=1))
+            write_text_atomic(d / RUN_FILE, json.dumps({"name": spec.name, "kind": spec.kind, "scale": self.scale.name,
+                                                        "wall_s": wall, "resumed": resumed, "finished": utc_now()},
+                                                       indent=1))
             status = "resumed" if resumed else "done"
             self.log(f"[{i}/{len(specs)}] {status} {spec.name} in {wall:.1f} s")
             outcomes.append(RunOutcome(spec.name, status, wall))
@@ -122,7 +125,7 @@ class SuiteRunner:
         cfg = data_config(self.scale, spec.short)
         path = store_path(self.out, spec.short)
         path.parent.mkdir(parents=True, exist_ok=True)
-        (path.parent / "config.yaml").write_text(_yaml(to_dict(cfg)))
+        write_text_atomic(path.parent / "config.yaml", _yaml(to_dict(cfg)))
         if _store_complete(path):
             return False
         resume = store_exists(str(path))
@@ -171,7 +174,15 @@ def run_suite(scale: str | Path, out: str | Path, only: Sequence[str] | None = N
     page to ``results`` when given. Returns one outcome per run."""
     cfg, path = load_scale(scale)
     specs = select_runs(build_suite(), only)
-    _manifest(Path(out), cfg, path, command or f"run_suite({scale!r}, {str(out)!r}, only={list(only or [])})", only)
+    with write_lock(out):  # one `reproduce` per output folder; its stores and runs take their own locks too
+        return _run_suite_locked(cfg, path, specs, out, only, workers, results, command or
+                                 f"run_suite({scale!r}, {str(out)!r}, only={list(only or [])})", log)
+
+
+def _run_suite_locked(cfg: ScaleConfig, path: Path, specs: list[RunSpec], out: str | Path, only: Sequence[str] | None,
+                      workers: int | None, results: str | Path | None, command: str,
+                      log: Callable[[str], None]) -> list[RunOutcome]:
+    _manifest(Path(out), cfg, path, command, only)
     outcomes = SuiteRunner(cfg, path, out, workers, log).run(specs)
     done = sum(o.status != "skipped" for o in outcomes)
     _record_runs_done(Path(out), done)

@@ -1,10 +1,12 @@
-"""Reading the files physdyn writes with ``torch.save`` without running any code they carry, and a checkpoint
+"""Reading the files physdyn writes with ``torch.save`` without running any code they carry (and writing them
+whole or not at all: ``write_torch_file``), and a checkpoint
 of `physdyn fit` as a dict: the one place that turns a missing, unreadable, foreign or code-carrying file into a
 one-line ``CheckpointError`` (loading the model, resuming, exporting, adding a topple classifier, starting from
 a pretrained encoder). Why and what is read: docs/security.md."""
 
 from __future__ import annotations
 
+import io
 import pickle
 import re
 import warnings
@@ -15,6 +17,7 @@ from typing import Any
 import torch
 
 from physdyn.errors import CheckpointError
+from physdyn.files import write_bytes_atomic
 
 # The types a file may hold beyond torch's weights-only set (tensors, dicts, lists, tuples, strings, numbers,
 # OrderedDict, torch dtypes and devices). None: physdyn writes hyper-parameters as plain dicts
@@ -77,3 +80,12 @@ def read_checkpoint(path: str | Path) -> dict:
         raise CheckpointError(f"{path} is not a physdyn DynamicsModel checkpoint (no physdyn config, normalisation and "
                               f"weights); pass best.ckpt or last.ckpt from a `physdyn fit` run")
     return raw
+
+
+def write_torch_file(obj: Any, path: str | Path) -> None:
+    """``torch.save(obj, path)``, whole or not at all (``physdyn.files.atomic_output``). Serialised in memory
+    first: torch's own file writer turns a full disk into "RuntimeError: basic_ios::clear: iostream error",
+    while a plain write gives an OSError that names the file and the cause."""
+    buffer = io.BytesIO()
+    torch.save(obj, buffer)
+    write_bytes_atomic(path, buffer.getbuffer())

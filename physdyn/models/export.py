@@ -25,8 +25,7 @@ from omegaconf import OmegaConf
 
 from physdyn.config import ExperimentConfig, config_from_dict, parse_override, to_dict
 from physdyn.errors import ConfigError, PhysdynError
-from physdyn.files import atomic_output
-from physdyn.models.checkpoint_file import read_checkpoint
+from physdyn.models.checkpoint_file import read_checkpoint, write_torch_file
 from physdyn.models.training import validate_experiment_config
 
 # What DynamicsModel.load_from_checkpoint needs; the optimiser, loops and callbacks are only for resuming.
@@ -94,8 +93,7 @@ def export_checkpoint(src: str | Path, dst: str | Path, overwrite: bool = False,
             linear = slim["linear_channels"]["hyper_parameters"]
             slim["linear_channels"] = {**slim["linear_channels"], "hyper_parameters": apply_settings(linear, network)}
     dst.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_output(dst) as tmp:  # never a half-written checkpoint under the final name
-        torch.save(slim, tmp)
+    write_torch_file(slim, dst)  # never a half-written checkpoint under the final name
     return dst
 
 

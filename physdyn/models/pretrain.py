@@ -11,6 +11,7 @@ holds ``{"encoder": name, "params": {...}, "state_dict": {...}, "classes": [...]
 
 from __future__ import annotations
 
+import contextlib
 import json
 import warnings
 from dataclasses import dataclass, field
@@ -28,11 +29,15 @@ from torch.utils.data import DataLoader, TensorDataset
 from physdyn.config import OptimConfig, PretrainConfig, PretrainDataConfig, load_config, to_dict
 from physdyn.errors import ConfigError, ShapeError
 from physdyn.geometry.sampling import sample_surface_points
-from physdyn.models.checkpoint_file import read_torch_file
+from physdyn.models.checkpoint_file import read_torch_file, write_torch_file
 from physdyn.models.optimizer import adam_with_schedule
-from physdyn.models.run_directory import FINISHED, prepare_run_directory, run_directory, save_config_yaml
+from physdyn.files import write_text_atomic
+from physdyn.models.run_directory import (
+    FINISHED, is_global_zero_process, prepare_run_directory, run_directory, save_config_yaml,
+)
 from physdyn.models.trainer_setup import build_trainer, ignore_lightning_noise, validate_trainer_args
 from physdyn.registry import ENCODERS, SHAPE_FAMILIES
+from physdyn.write_lock import write_lock
 
 DEFAULT_SHAPES_PER_FAMILY = 40
 
@@ -192,7 +197,8 @@ def load_pretrain_config(path, overrides: list[str] | None = None) -> PretrainCo
 
 def save_encoder(encoder: nn.Module, name: str, params: dict, classes: list[str], path: Path) -> None:
     state = {k: v.detach().cpu() for k, v in encoder.state_dict().items()}
-    torch.save({"encoder": name, "params": params, "state_dict": state, "classes": classes}, path)
+    # a crash keeps the previous encoder.pt, never half of one
+    write_torch_file({"encoder": name, "params": params, "state_dict": state, "classes": classes}, path)
 
 
 def pretrain(config: PretrainConfig, overwrite: bool = False) -> PretrainResult:
@@ -200,6 +206,11 @@ def pretrain(config: PretrainConfig, overwrite: bool = False) -> PretrainResult:
 
     cfg = config
     out_dir = run_directory(cfg)
+    with write_lock(out_dir) if is_global_zero_process() else contextlib.nullcontext():  # one run per folder
+        return _pretrain(cfg, out_dir, overwrite)
+
+
+def _pretrain(cfg: PretrainConfig, out_dir: Path, overwrite: bool) -> PretrainResult:
     prepare_run_directory(out_dir, resume=False, overwrite=overwrite, what="physdyn pretrain", resumable=False)
     lightning.seed_everything(cfg.seed, workers=True, verbose=False)
     clouds = load_shape_clouds(cfg.data, cfg.seed)
@@ -230,5 +241,5 @@ def pretrain(config: PretrainConfig, overwrite: bool = False) -> PretrainResult:
     encoder_path = out_dir / "encoder.pt"
     if trainer.is_global_zero:
         save_encoder(model.encoder, cfg.encoder.name, dict(cfg.encoder.params), clouds.classes, encoder_path)
-        (out_dir / FINISHED).write_text(json.dumps({"metrics": metrics, "classes": clouds.classes}, indent=2))
+        write_text_atomic(out_dir / FINISHED, json.dumps({"metrics": metrics, "classes": clouds.classes}, indent=2))
     return PretrainResult(encoder_path, out_dir, metrics)

@@ -12,6 +12,7 @@ from omegaconf import OmegaConf
 
 from physdyn.config import ExperimentConfig, config_from_dict, to_dict
 from physdyn.errors import PhysdynError
+from physdyn.files import write_text_atomic
 
 FINISHED = "finished.json"
 
@@ -100,4 +101,4 @@ def check_resumed_config(cfg: Any, saved_yaml: Path) -> None:
 
 def save_config_yaml(cfg: Any, path: Path) -> None:
     if is_global_zero_process():
-        path.write_text(OmegaConf.to_yaml(OmegaConf.create(to_dict(cfg))))
+        write_text_atomic(path, OmegaConf.to_yaml(OmegaConf.create(to_dict(cfg))))

@@ -20,7 +20,8 @@ from lightning.pytorch.loggers.logger import rank_zero_experiment
 from lightning.pytorch.plugins import TorchCheckpointIO
 
 from physdyn.errors import ConfigError
-from physdyn.models.checkpoint_file import read_torch_file
+from physdyn.files import atomic_output
+from physdyn.models.checkpoint_file import read_torch_file, write_torch_file
 
 # Trainer arguments physdyn sets itself from other config keys.
 RESERVED_TRAINER_KEYS = {
@@ -60,7 +61,7 @@ def _resumable_csv_logger(out_dir: Path, keep_until_step: int | None):
                 reader = csv.DictReader(file)
                 header, rows = list(reader.fieldnames or []), list(reader)
             rows = [r for r in rows if not r.get("step") or float(r["step"]) <= keep_until_step]
-            with path.open("w", newline="") as file:
+            with atomic_output(path, suffix=".csv") as tmp, tmp.open("w", newline="") as file:
                 writer = csv.DictWriter(file, fieldnames=header)
                 writer.writeheader()
                 writer.writerows(rows)
@@ -169,7 +170,19 @@ def _drop_lightning_tips() -> None:
 
 class SafeCheckpointIO(TorchCheckpointIO):
     """Lightning's checkpoint files, read through ``read_torch_file``: resuming runs no code a checkpoint
-    carries, whatever the installed Lightning defaults to (before 2.6 it loads with weights_only=False)."""
+    carries, whatever the installed Lightning defaults to (before 2.6 it loads with weights_only=False).
+
+    And written through ``atomic_output``: Lightning's own "atomic" save stages the file in the system's
+    temporary folder and then copies it over the checkpoint, so a full disk or a kill during the copy left a
+    truncated last.ckpt (and an error naming the temporary file). Here the file is written beside its final
+    name, synced, then renamed over it: a crash leaves the previous checkpoint, never half of a new one."""
+
+    def save_checkpoint(self, checkpoint: dict[str, Any], path, storage_options: Any | None = None) -> None:
+        if storage_options is not None:
+            raise TypeError("physdyn's checkpoint writer takes no storage_options")
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_torch_file(checkpoint, path)
 
     def load_checkpoint(self, path, map_location=None, weights_only=None) -> dict[str, Any]:
         return read_torch_file(path, "a .ckpt written by `physdyn fit`")

@@ -8,6 +8,7 @@ ends, ``finished.json``. An existing run directory is never overwritten silently
 
 from __future__ import annotations
 
+import contextlib
 import json
 import warnings
 from dataclasses import dataclass, field
@@ -32,6 +33,8 @@ from physdyn.models.run_directory import (
 )
 from physdyn.models.trainer_setup import build_trainer, ignore_lightning_noise, validate_trainer_args
 from physdyn.registry import ENCODERS, HEADS, PREDICTORS
+from physdyn.write_lock import refuse_if_busy, write_lock
+from physdyn.files import remove_stale_temporaries, write_text_atomic
 
 
 @dataclass
@@ -112,6 +115,8 @@ def fit(config: ExperimentConfig, resume: bool = False, overwrite: bool = False,
 
     cfg = validate_experiment_config(config)
     out_dir = run_directory(cfg)
+    if is_global_zero_process():
+        refuse_if_busy(out_dir)  # another fit on this folder: say so now, not after loading the store
     ckpt_path: Path | None = Path(cfg.ckpt_path) if cfg.ckpt_path else None
     if ckpt_path is None and resume:
         ckpt_path = out_dir / "last.ckpt"
@@ -151,9 +156,19 @@ def fit(config: ExperimentConfig, resume: bool = False, overwrite: bool = False,
     model = DynamicsModel(cfg, normalization, data_info)
     if cfg.model.encoder_init and ckpt_path is None:
         model.load_encoder_weights(cfg.model.encoder_init)
-    # Only now, with every input checked, is the run directory touched (created, or replaced on --overwrite).
+    # Only now, with every input checked, is the run directory touched: under the writer's lock, so a second
+    # `fit` on the same folder (--resume or not) is refused naming the first. Other ranks of a multi-process
+    # run write nothing there and take no lock.
+    with write_lock(out_dir) if is_global_zero_process() else contextlib.nullcontext():
+        return _train(cfg, out_dir, model, datamodule, ckpt_path, resume, overwrite, resumed_step)
+
+
+def _train(cfg: ExperimentConfig, out_dir: Path, model: DynamicsModel, datamodule: DynamicsDataModule,
+           ckpt_path: Path | None, resume: bool, overwrite: bool, resumed_step: int | None) -> FitResult:
     prepare_run_directory(out_dir, resume=resume or ckpt_path is not None, overwrite=overwrite and ckpt_path is None)
     out_dir.mkdir(parents=True, exist_ok=True)
+    if is_global_zero_process():  # the lock's holder: no other writer's temporary file can be in use
+        remove_stale_temporaries(out_dir, ("best.ckpt", "last.ckpt", "config.yaml", FINISHED))  # a killed run's
     save_config_yaml(cfg, out_dir / "config.yaml")
 
     checkpoint = ModelCheckpoint(
@@ -194,5 +209,5 @@ def fit(config: ExperimentConfig, resume: bool = False, overwrite: bool = False,
     best = out_dir / "best.ckpt"
     last = out_dir / "last.ckpt"
     if trainer.is_global_zero:
-        (out_dir / FINISHED).write_text(json.dumps({"metrics": metrics, "global_step": trainer.global_step}, indent=2))
+        write_text_atomic(out_dir / FINISHED, json.dumps({"metrics": metrics, "global_step": trainer.global_step}, indent=2))
     return FitResult(best if best.is_file() else None, last if last.is_file() else None, out_dir, metrics)

@@ -23,6 +23,7 @@ import trimesh
 
 from physdyn.config import MassConfig, PhysicsConfig
 from physdyn.errors import PhysdynError, ShapeError
+from physdyn.files import atomic_output
 from physdyn.geometry.mesh_io import load_mesh
 from physdyn.geometry.poses import stable_orientations
 from physdyn.geometry.rotations import canonical_quat, continuous_quat, matrix_to_quat, quat_conjugate, quat_multiply, quat_to_matrix, rotvec_to_quat
@@ -215,7 +216,8 @@ def simulate_trial(world, body: int, shape: TrackedShape, rng: np.random.Generat
 def write_trial_csv(path: str | Path, time: np.ndarray, position: np.ndarray, orientation_xyzw: np.ndarray) -> None:
     """The import's input format: header ``time,x,y,z,qx,qy,qz,qw``, one row per sample."""
     table = np.column_stack([time, position, orientation_xyzw])
-    np.savetxt(path, table, delimiter=",", header=CSV_HEADER, comments="", fmt=["%.6f"] + ["%.7f"] * 3 + ["%.8f"] * 4)
+    with atomic_output(path, suffix=".csv") as tmp:
+        np.savetxt(tmp, table, delimiter=",", header=CSV_HEADER, comments="", fmt=["%.6f"] + ["%.7f"] * 3 + ["%.8f"] * 4)
 
 
 def simulate_mocap_trials(out: str | Path, trials: int = 12, seed: int = 0, box: str | None = None,
@@ -249,13 +251,15 @@ def simulate_mocap_trials(out: str | Path, trials: int = 12, seed: int = 0, box:
             rng = np.random.default_rng(np.random.SeedSequence([seed, i]))
             trial = simulate_trial(world, body, shape, rng, settings)
             path = out / f"trial_{i:03d}.csv"
+            # the truth first: a trial whose CSV is there has its truth too (each file whole or absent)
+            with atomic_output(path.with_suffix(".truth.npz")) as tmp, open(tmp, "wb") as fh:
+                np.savez(
+                    fh, time=trial.time, com_position=trial.com_position,
+                    orientation_xyzw=trial.orientation_xyzw, linear_velocity=trial.linear_velocity,
+                    angular_velocity=trial.angular_velocity, push_start=trial.push_start, release=trial.release,
+                    friction=trial.friction, floor_offset=trial.floor_offset, shape=shape.source,
+                    settings=json.dumps(settings.__dict__),
+                )
             write_trial_csv(path, trial.time, trial.csv_position, trial.csv_orientation)
-            np.savez(
-                path.with_suffix(".truth.npz"), time=trial.time, com_position=trial.com_position,
-                orientation_xyzw=trial.orientation_xyzw, linear_velocity=trial.linear_velocity,
-                angular_velocity=trial.angular_velocity, push_start=trial.push_start, release=trial.release,
-                friction=trial.friction, floor_offset=trial.floor_offset, shape=shape.source,
-                settings=json.dumps(settings.__dict__),
-            )
             paths.append(path)
     return paths
