@@ -153,8 +153,9 @@ def test_test_and_predict_batch_killed_leave_their_output_whole_or_absent(tiny_s
         "predict --batch": ["predict", "--batch", str(requests), "--out-dir", str(preds), "--overwrite"],
     }
     for name, args in commands.items():
-        kills = survived = lost = 0
-        for _ in range(KILLS):
+        kills = survived = lost = attempts = 0
+        while kills < KILLS and attempts < 3 * KILLS:  # a run that finishes before its kill is tried again
+            attempts += 1
             proc = start(args)
             time.sleep(rng.uniform(2.0, 12.0))
             if not kill(proc):
@@ -175,7 +176,7 @@ def test_test_and_predict_batch_killed_leave_their_output_whole_or_absent(tiny_s
                 print(f"lost after a kill of {name}: {type(exc).__name__}: {exc}")
                 lost += 1
         tally(f"{name} kill -9", kills, survived, lost)
-        assert lost == 0 and kills >= KILLS // 2
+        assert lost == 0 and kills >= KILLS
 
 
 # --- full disk and I/O errors in the write layer ------------------------------------------------------------
