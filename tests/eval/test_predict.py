@@ -309,6 +309,22 @@ def test_padded_batch_of_the_bundled_hybrid_equals_each_request_alone(meshes):
             np.testing.assert_allclose(got[key], alone[key], rtol=1e-5, atol=1e-5, err_msg=key)
 
 
+def test_a_networks_only_model_predicts_with_no_simulator(checkpoint, meshes, monkeypatch):
+    """A model without a simulated start or a simulating topple classifier runs no PyBullet at all: every
+    simulator in physdyn connects through ``pb.connect`` (physdyn/sim/world.py), made to fail here."""
+    import physdyn.sim.world as world
+
+    predictor = load_predictor(checkpoint)
+    assert getattr(predictor.model, "topple_classifier", None) is None
+    monkeypatch.setattr(world.pb, "connect", lambda *a, **k: (_ for _ in ()).throw(AssertionError("PyBullet was called")))
+    result = predictor.predict(str(meshes / "box.obj"), LIN, ANG, seconds=1.0)
+    many = predictor.predict_many([str(meshes / "can.stl")] * 3, LIN, ANG, seconds=[0.5, 1.0, 1.5])
+    assert np.isfinite(result["com_position"]).all()
+    assert [len(m["time"]) for m in many] == [predictor.num_steps(x) for x in (0.5, 1.0, 1.5)]
+    with pytest.raises(AssertionError, match="PyBullet was called"):  # the patch does catch a simulator
+        predictor.predict(str(meshes / "box.obj"), LIN, ANG, seconds=1.0, compare_sim=True)
+
+
 def _cli(*args: str, capsys) -> tuple[int, str, str]:
     """`physdyn ARGS` in this process (the CLI's own error boundary): exit code, stdout, stderr."""
     from physdyn.cli import main
