@@ -20,7 +20,10 @@ def hull_store(tmp_path_factory) -> str:
     from physdyn.data.simulated_store import generate_dataset
 
     out = tmp_path_factory.mktemp("hull_store") / "hull.zarr"
-    generate_dataset(tiny_data_config("points_method=hull_surface", "num_points=64"), str(out), workers=1, progress=False)
+    fewer = [f"families.{name}.{key}=3" for name in ("primitives", "bottles", "mugs", "trashcans", "speakers")
+             for key in ("shapes", "sims_per_shape")]  # 45 pushes: enough to train 3 steps and predict
+    generate_dataset(tiny_data_config("points_method=hull_surface", "num_points=64", *fewer), str(out), workers=1,
+                     progress=False)
     return str(out)
 
 
