@@ -158,15 +158,23 @@ def test_cli_only_two_experiments_then_report_only(tmp_path):
     assert page.is_file() and "| MLP |" in page.read_text()
 
 
-def test_cli_errors_are_one_line(tmp_path):
-    proc = run_cli("reproduce", "--scale", "tiny", "--out", str(tmp_path / "o"), "--only", "nonsense", "--no-results")
-    assert proc.returncode == 2 and "unknown experiment 'nonsense'" in proc.stderr and "Traceback" not in proc.stderr
+def test_cli_errors_are_one_line(tmp_path, capsys):
+    """The command's own error boundary, in this process (a fresh interpreter per case cost 5 s each)."""
+    from physdyn.cli import main
+
+    def cli(*args: str) -> tuple[int, str]:
+        code = main(list(args))
+        return code, capsys.readouterr().err
+
+    code, err = cli("reproduce", "--scale", "tiny", "--out", str(tmp_path / "o"), "--only", "nonsense", "--no-results")
+    assert code == 2 and "unknown experiment 'nonsense'" in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
     (tmp_path / "o").mkdir(exist_ok=True)
     (tmp_path / "o" / suite.MANIFEST).write_text(json.dumps({"scale": "cpu", "invocations": []}))
-    proc = run_cli("reproduce", "--scale", "tiny", "--out", str(tmp_path / "o"), "--no-results")
-    assert proc.returncode == 2 and "scale 'cpu'" in proc.stderr
-    proc = run_cli("reproduce", "--report-only", "--out", str(tmp_path / "empty"), "--results", str(tmp_path / "r.md"))
-    assert proc.returncode == 2 and "reproduce.json" in proc.stderr
+    code, err = cli("reproduce", "--scale", "tiny", "--out", str(tmp_path / "o"), "--no-results")
+    assert code == 2 and "scale 'cpu'" in err and len(err.strip().splitlines()) == 1
+    code, err = cli("reproduce", "--report-only", "--out", str(tmp_path / "empty"), "--results", str(tmp_path / "r.md"))
+    assert code == 2 and "reproduce.json" in err and len(err.strip().splitlines()) == 1
 
 
 def test_selecting_experiments_pulls_in_what_they_need():
