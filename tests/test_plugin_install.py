@@ -108,6 +108,7 @@ def test_physdyn_components_lists_it(installed, tmp_path):
     assert "skipping" not in proc.stderr, proc.stderr  # no plugin failed to load
 
 
+@pytest.mark.slow  # seconds of real simulation or installs: CI's slow pass runs it
 def test_installing_again_is_harmless(installed, tmp_path):
     pip_install()
     proc = run_python(

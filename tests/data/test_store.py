@@ -63,6 +63,7 @@ def test_data_info_summarises(tiny_store):
     assert summary["sims"] == 150 and summary["shapes"] == 25
 
 
+@pytest.mark.slow  # seconds of real simulation or installs: CI's slow pass runs it
 def test_contact_noise_statistic_tells_a_coarse_physics_step_from_the_conventions_one(tiny_store, tmp_path):
     # The same pushes simulated at PyBullet's usual 1/240 s chatter: the statistic must see it, and
     # `data info` must call that store noisy and the conventions' 1/960 s one faithful.

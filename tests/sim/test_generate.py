@@ -170,6 +170,7 @@ def test_overwrite_never_deletes_a_folder_that_is_not_a_store(tmp_path):
     assert (precious / "chapter1.tex").read_text() == "months of work"
 
 
+@pytest.mark.slow  # seconds of real simulation or installs: CI's slow pass runs it
 def test_ctrl_c_leaves_a_resumable_store_and_says_so(tmp_path):
     out = tmp_path / "int.zarr"
     cmd = [sys.executable, "-m", "physdyn.cli", "simulate", "--config", "configs/data/quickstart.yaml",
@@ -188,6 +189,7 @@ def test_ctrl_c_leaves_a_resumable_store_and_says_so(tmp_path):
         load_store(out)
 
 
+@pytest.mark.slow  # seconds of real simulation or installs: CI's slow pass runs it
 def test_resume_with_a_different_config_is_refused(tmp_path):
     out = tmp_path / "x.zarr"
     generate_dataset(small_config(), str(out), progress=False)
@@ -239,6 +241,7 @@ def test_mesh_folder_with_bad_files_skips_and_reports_them(tmp_path):
     assert 0.05 < d.points.max() - d.points.min() < 0.2  # scaled from centimetres to metres
 
 
+@pytest.mark.slow  # seconds of real simulation or installs: CI's slow pass runs it
 def test_a_failed_overwrite_leaves_the_old_store_exactly_as_it_was(tmp_path):
     import hashlib
 
