@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 import warnings
 
 # Handlers import the library themselves, so `physdyn --help` stays light (see physdyn/cli/__init__.py).
@@ -65,6 +64,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from physdyn.cli.predict import print_mesh_notes
     from physdyn.config import ImpulseConfig, PhysicsConfig
     from physdyn.predict.body import prepare_body
     from physdyn.predict.plan_files import check_plan_path, plan_summary, write_plan, write_plan_viewer
@@ -94,8 +94,7 @@ def run(args: argparse.Namespace) -> int:
                                 seed=args.seed, speed_min=args.speed_min, speed_max=args.speed_max,
                                 height_fraction=args.height_fraction, lateral_fraction=args.lateral_fraction,
                                 verify=args.verify, model=args.pybullet_step)
-    for note in dict.fromkeys(str(n.message) for n in notes if n.category.__name__ == "PredictionWarning"):
-        print(f"warning: {note}", file=sys.stderr)
+    print_mesh_notes(notes)
     print(plan_summary(result))
     if args.out:
         print(f"wrote {write_plan(result, args.out, overwrite=args.overwrite)}")

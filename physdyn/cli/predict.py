@@ -84,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
     return run_one(args)
 
 
-def _warnings(notes: list, prefix: str = "") -> None:
+def print_mesh_notes(notes: list, prefix: str = "") -> None:
     """Print the mesh notes a prediction raised (PredictionWarning), once each; other warnings are noise here."""
     for note in dict.fromkeys(str(n.message) for n in notes if n.category.__name__ == "PredictionWarning"):
         print(f"{prefix}warning: {note}", file=sys.stderr)
@@ -112,7 +112,7 @@ def run_one(args: argparse.Namespace) -> int:
         predictor = load_predictor(args.checkpoint, device=args.device)
         result = predictor.predict(body, lin, ang, seconds=args.seconds, orientation_xyzw=orientation,
                                    compare_sim=args.compare_sim)
-    _warnings(notes)
+    print_mesh_notes(notes)
     print(summary(result))
     if args.out:
         print(f"wrote {write_prediction(result, args.out, overwrite=args.overwrite)}")
@@ -249,6 +249,6 @@ def _read_request(line: str, number: int, base, out_dir, args, bodies: dict) -> 
         with warnings.catch_warnings(record=True) as notes:
             warnings.simplefilter("always")
             bodies[key] = prepare_body(mesh, float(scale))
-        _warnings(notes, f"line {number}: ")
+        print_mesh_notes(notes, f"line {number}: ")
     request["body"] = bodies[key]
     return request
