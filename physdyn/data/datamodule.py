@@ -157,8 +157,7 @@ class DynamicsDataModule(LightningDataModule):
             raise ConfigError(
                 f"config key 'data.num_points': {cfg.num_points} is not between 1 and the store's {n_avail} points"
             )
-        method = self.store.attrs.get("config", {}).get("points_method", "surface")
-        if method == "hull_surface" and cfg.num_points is not None and cfg.num_points < n_avail:
+        if self.store.points_method == "hull_surface" and cfg.num_points is not None and cfg.num_points < n_avail:
             # a random subset drops hull vertices, the very points this representation keeps for contact
             raise ConfigError(
                 f"config key 'data.num_points': {cfg.num_points} would subsample the store's {n_avail} hull_surface "

@@ -313,6 +313,12 @@ class StoreData:
     def rate_hz(self) -> float:
         return float(self.attrs["rate_hz"])
 
+    @property
+    def points_method(self) -> str:
+        """How ``shapes/points`` were drawn (the generation config's ``points_method``; stores made before it
+        existed, and imported ones, hold the paper's ``surface`` clouds)."""
+        return str(self.attrs.get("config", {}).get("points_method", "surface"))
+
     def lengths(self) -> np.ndarray:
         return np.diff(self.start)
 

@@ -145,7 +145,7 @@ def fit(config: ExperimentConfig, resume: bool = False, overwrite: bool = False,
         "window": cfg.data.window,
         "num_points": cfg.data.num_points or int(datamodule.store.points.shape[1]),  # what the model sees
         # how the store's clouds were made: predict must make a new mesh's cloud the same way
-        "points_method": str(datamodule.store.attrs.get("config", {}).get("points_method", "surface")),
+        "points_method": datamodule.store.points_method,
         "category_names": list(datamodule.store.category_names),
         "train_sims": int(len(datamodule.sims.train)),
         # for model.prior: the training data's friction (median: a random-friction store has many) and gravity
