@@ -117,16 +117,27 @@ def test_fit_killed_at_random_moments_keeps_a_loadable_checkpoint_and_resumes_to
             assert proc.returncode == 0, err[-2000:]
             break
         kills += 1
-        ok = True
+        problems = []
+        step = None
         if (out / "last.ckpt").is_file():  # never truncated, never behind what it held before the kill
             step = read_checkpoint(out / "last.ckpt")["global_step"]
-            ok = step >= last_step
+            if step < last_step:
+                problems.append(f"last.ckpt went back from step {last_step} to {step}")
             last_step = step
         if (out / "best.ckpt").is_file():
             read_checkpoint(out / "best.ckpt")
-        ok = ok and not visible_temporaries(out) and not (out / "finished.json").exists()
-        survived += ok
-        lost += not ok
+        if visible_temporaries(out):
+            problems.append(f"temporaries under output names: {visible_temporaries(out)}")
+        # finished.json is written last, so a kill may land after it, while the process tears down; it must
+        # then be whole and describe a run that really finished, never a partial one.
+        if (out / "finished.json").exists():
+            fin = json.loads((out / "finished.json").read_text())
+            if fin["global_step"] != steps or step != steps:
+                problems.append(f"finished.json (step {fin['global_step']}) beside last.ckpt at step {step}")
+        if problems:
+            print(f"\nkill {kills}: " + "; ".join(problems))
+        survived += not problems
+        lost += bool(problems)
     done = run_cli(*base, "--resume" if (out / "last.ckpt").is_file() else "--overwrite", timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]
     assert json.loads((out / "finished.json").read_text())["global_step"] == steps
