@@ -1,8 +1,9 @@
-"""`physdyn plan` on meshes training never saw: goals met at equal wall-clock budgets, physdyn's model inside
-the planner against the same planner with PyBullet at 1/240, 1/120 and 1/60 s as its model.
+"""`physdyn plan` on meshes training never saw: goals met at equal wall-clock budgets, physdyn's planner (its
+fast model screening candidates for PyBullet) against the same planner with PyBullet at 1/240, 1/120 and
+1/60 s alone, each with and without the final check at the conventions' step.
 
-    python benchmarks/planning.py --goals 50 --budgets 0.2 1 5                 # the full run (about 1.5 h on one core)
-    python benchmarks/planning.py --goals 12 --budgets 0.2 1 --json plan.json  # a small one
+    python benchmarks/planning.py --goals 50 --budgets 1 --json plan.json         # docs/plan.md's table (~15 min)
+    python benchmarks/planning.py --goals 50 --budgets 0.2 1 5                    # every budget (about 1.5 h)
 
 1. Goals: real pushes of the external meshes (benchmarks/external_meshes.py: pybullet_data's named objects and
    random_urdfs, simulated per the conventions at 1/960 s), one push per mesh in turn, only pushes that do
@@ -37,7 +38,21 @@ from external_meshes import external_store  # noqa: E402
 from physdyn.predict.planner import Goal, turn_about_vertical, verify_push  # noqa: E402
 from physdyn.predict.predictor import load_predictor  # noqa: E402
 
-PLANNERS = {"physdyn": None, "pybullet 1/240 s": 1 / 240, "pybullet 1/120 s": 1 / 120, "pybullet 1/60 s": 1 / 60}
+# name -> Predictor.plan settings. The same planner throughout (cross-entropy rounds, the budget's clock);
+# what differs is what rolls out the candidates, and whether the last fifth of the budget re-checks the
+# best 8 at the conventions' step.
+PLANNERS = {
+    "physdyn (default: contact-prior screen, PyBullet 1/240 s ranks, check)": {},
+    "physdyn (networks screen, PyBullet 1/240 s ranks, check)": {"screen": "model"},
+    "physdyn (bundled model alone)": {"search": "model", "check": False},
+    "pybullet 1/240 s, check": {"search": "pybullet", "pybullet_step": 1 / 240},
+    "pybullet 1/120 s, check": {"search": "pybullet", "pybullet_step": 1 / 120},
+    "pybullet 1/60 s, check": {"search": "pybullet", "pybullet_step": 1 / 60},
+    "pybullet 1/240 s": {"search": "pybullet", "pybullet_step": 1 / 240, "check": False},
+    "pybullet 1/120 s": {"search": "pybullet", "pybullet_step": 1 / 120, "check": False},
+    "pybullet 1/60 s": {"search": "pybullet", "pybullet_step": 1 / 60, "check": False},
+}
+DEFAULT_PLANNERS = [name for name in PLANNERS if "bundled" not in name]  # the bundled model alone: --planners
 
 
 def goals_from_store(store, count: int) -> list[dict]:
@@ -64,7 +79,8 @@ def main() -> None:
     parser.add_argument("--pushes", type=int, default=10)
     parser.add_argument("--goals", type=int, default=50)
     parser.add_argument("--budgets", type=float, nargs="+", default=[0.2, 1.0, 5.0])
-    parser.add_argument("--planners", nargs="+", default=list(PLANNERS), choices=list(PLANNERS))
+    parser.add_argument("--planners", nargs="+", default=DEFAULT_PLANNERS, choices=list(PLANNERS), metavar="NAME",
+                        help="which planners (default: all but the bundled model alone): " + "; ".join(PLANNERS))
     parser.add_argument("--json", default=None, help="also write every plan's figures here")
     args = parser.parse_args()
     torch.set_num_threads(1)
@@ -79,14 +95,14 @@ def main() -> None:
         for budget in args.budgets:
             for name in args.planners:
                 plan = predictor.plan(g["mesh"], g["xy"], goal_yaw=g["yaw_deg"], upright=True, budget_s=budget,
-                                      orientation_xyzw=g["orientation_xyzw"], model=PLANNERS[name], seed=g["sim"])
+                                      orientation_xyzw=g["orientation_xyzw"], seed=g["sim"], **PLANNERS[name])
                 body = predictor._bodies([g["mesh"]], [1.0])[0]
                 check = verify_push(body, plan["orientation_xyzw"], plan["lin_vel"], plan["ang_vel"], goal, predictor.rate_hz)
                 rows.append({"sim": g["sim"], "mesh": Path(g["mesh"]).stem, "budget_s": budget, "planner": name,
                              "met": check["met"], "miss_cm": 100 * check["miss_m"], "miss_deg": check["miss_yaw_deg"],
                              "toppled": check["toppled"], "predicted_miss_cm": 100 * plan["predicted"]["miss_m"],
                              "predicted_miss_deg": plan["predicted"]["miss_yaw_deg"], "predicted_met": plan["predicted"]["met"],
-                             "candidates": plan["candidates"], "elapsed_s": plan["elapsed_s"],
+                             "candidates": plan["candidates"], "screened": plan["screened"], "elapsed_s": plan["elapsed_s"],
                              "goal_cm": 100 * float(np.linalg.norm(g["xy"])), "goal_deg": g["yaw_deg"]})
         done = rows[-len(args.budgets) * len(args.planners):]
         print(f"sim {g['sim']} ({Path(g['mesh']).stem}): " + ", ".join(
@@ -95,7 +111,8 @@ def main() -> None:
     seconds = time.perf_counter() - started
     print(f"\n{len(goals)} goals from real pushes of {len({g['mesh'] for g in goals})} external meshes, "
           f"{seconds:.0f} s; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores\n")
-    print("| budget per goal | model inside the planner | goals met | median miss (cm) | median miss (deg) | met as predicted | candidates per second |")
+    print("| budget per goal | planner | goals met | median miss (cm) | median miss (deg) | met as predicted | "
+          "candidates per second (screened) |")
     print("|---|---|---|---|---|---|---|")
     table = []
     for budget in args.budgets:
@@ -103,12 +120,15 @@ def main() -> None:
             rs = [r for r in rows if r["budget_s"] == budget and r["planner"] == name]
             met = np.mean([r["met"] for r in rs])
             rate = sum(r["candidates"] for r in rs) / sum(r["elapsed_s"] for r in rs)
+            screened = sum(r["screened"] for r in rs) / sum(r["elapsed_s"] for r in rs)
             predicted = np.mean([r["predicted_met"] for r in rs])  # the search's own verdict: model error apart
             line = {"budget_s": budget, "planner": name, "met": float(met), "predicted_met": float(predicted), "median_miss_cm": float(np.median([r["miss_cm"] for r in rs])),
-                    "median_miss_deg": float(np.median([r["miss_deg"] for r in rs])), "candidates_per_s": float(rate)}
+                    "median_miss_deg": float(np.median([r["miss_deg"] for r in rs])), "candidates_per_s": float(rate),
+                    "screened_per_s": float(screened)}
             table.append(line)
             print(f"| {budget:g} s | {name} | {100 * met:.0f} % ({sum(r['met'] for r in rs)}/{len(rs)}) | "
-                  f"{line['median_miss_cm']:.1f} | {line['median_miss_deg']:.1f} | {100 * predicted:.0f} % | {rate:.0f} |")
+                  f"{line['median_miss_cm']:.1f} | {line['median_miss_deg']:.1f} | {100 * predicted:.0f} % | {rate:.0f}"
+                  + (f" ({screened:.0f})" if screened else "") + " |")
     if args.json:
         Path(args.json).write_text(json.dumps({"table": table, "plans": rows, "seconds": seconds}, indent=1))
 

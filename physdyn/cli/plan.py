@@ -58,8 +58,18 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="push points within the centre-of-mass height +/- F x the object's height (default: 0.25)")
     p.add_argument("--lateral-fraction", type=float, default=None, metavar="F",
                    help="push points up to F x the half-width sideways of the centre of mass (default: 0.5)")
-    p.add_argument("--pybullet-step", type=float, default=None, metavar="DT",
-                   help="search with PyBullet at this time step (s, e.g. 0.004167) as the model instead of the network")
+    p.add_argument("--search", choices=("screened", "model", "pybullet"), default="screened",
+                   help="what rolls out the candidates: 'screened' (default): a fast model screens 16x as many as "
+                        "PyBullet at --pybullet-step ranks; 'model': the checkpoint's model alone; 'pybullet': "
+                        "PyBullet at --pybullet-step alone")
+    p.add_argument("--screen", choices=("prior", "model"), default="prior",
+                   help="the fast model of a screened search: 'prior' (default): the contact prior, no network; "
+                        "'model': the checkpoint's networks without simulator")
+    p.add_argument("--pybullet-step", type=float, default=1.0 / 240.0, metavar="DT",
+                   help="time step (s) of PyBullet in a screened or pybullet search (default: 1/240 = 0.004167)")
+    p.add_argument("--no-check", action="store_true",
+                   help="skip the final check (the best 8 candidates rolled out again at the conventions' step "
+                        "in the last fifth of the budget; the best by it answers)")
     p.set_defaults(func=run, parser=p)
 
 
@@ -68,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     from physdyn.config import ImpulseConfig, PhysicsConfig
     from physdyn.predict.body import prepare_body
     from physdyn.predict.plan_files import check_plan_path, plan_summary, write_plan, write_plan_viewer
-    from physdyn.predict.planner import check_budget, check_bounds, check_goal
+    from physdyn.predict.planner import check_budget, check_bounds, check_goal, check_search
     from physdyn.predict.predictor import check_orientation, load_predictor
 
     # Every check that needs no model comes first, so a bad goal fails fast and writes nothing.
@@ -79,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
                                       defaults.lateral_fraction if args.lateral_fraction is None else args.lateral_fraction)
     check_goal(args.goal, args.goal_yaw, args.upright, speed_max, PhysicsConfig())
     check_budget(args.budget)
+    check_search(args.search, args.pybullet_step, args.screen)
     orientation = check_orientation(args.orientation)
     if args.out:
         check_plan_path(args.out, args.overwrite)
@@ -93,7 +104,8 @@ def run(args: argparse.Namespace) -> int:
         result = predictor.plan(body, args.goal, args.goal_yaw, args.upright, args.budget, orientation_xyzw=orientation,
                                 seed=args.seed, speed_min=args.speed_min, speed_max=args.speed_max,
                                 height_fraction=args.height_fraction, lateral_fraction=args.lateral_fraction,
-                                verify=args.verify, model=args.pybullet_step)
+                                verify=args.verify, search=args.search, pybullet_step=args.pybullet_step,
+                                screen=args.screen, check=not args.no_check)
     print_mesh_notes(notes)
     print(plan_summary(result))
     if args.out:

@@ -37,6 +37,12 @@ ELITES = 8  # kept to refit the search distribution
 FIRST_ROUND = 16  # a small first round measures what a candidate costs, so later rounds fit the budget
 MIN_ROUND = 4
 TOPPLE_COST = 100.0  # an upright goal's toppled candidate ranks below every upright one
+SEARCHES = ("screened", "model", "pybullet")  # what rolls out the candidates (docs/plan.md)
+SCREENS = ("prior", "model")  # the fast model of a screened search
+DEFAULT_PYBULLET_STEP = 1.0 / 240.0  # ranks a screened search's candidates (docs/plan.md: the benchmark)
+SCREEN_FACTOR = 16  # a screened search rolls out this many times as many candidates with the fast model
+CHECK_SHARE = 0.2  # the last fifth of the budget re-checks the best candidates at the conventions' step
+CHECK_POOL = 8  # ... at most this many
 
 
 # --------------------------------------------------------------------------------------------------
@@ -237,9 +243,10 @@ class BulletRollout:
     REST_CHECK_S = 1.0 / 60.0
 
     def __init__(self, spec: Any, orientation_xyzw: np.ndarray, time_step: float, seconds: float,
-                 physics: PhysicsConfig | None = None):
+                 physics: PhysicsConfig | None = None, record_hz: float | None = None):
         self.physics = replace(physics or PhysicsConfig(), time_step=float(time_step))
         self.spec, self.orientation, self.seconds = spec, np.asarray(orientation_xyzw, dtype=np.float64), seconds
+        self.record_hz = record_hz  # keep each candidate's trajectory at this rate (the final check's answer has one)
         self.world = PhysicsWorld(self.physics)
         self.body = self.world.add_body(spec)
         self.name = f"pybullet@1/{round(1.0 / time_step)}s"
@@ -252,12 +259,22 @@ class BulletRollout:
         chunk = max(1, int(round(self.REST_CHECK_S / phys.time_step)))
         total = int(math.ceil(self.seconds / phys.time_step))
         rest_needed = int(math.ceil(phys.rest_duration / phys.time_step))
+        record = int(round(1.0 / (self.record_hz * phys.time_step))) if self.record_hz else 0
+        if record:
+            chunk = math.gcd(chunk, record)  # the recorded steps fall on chunk boundaries
         positions, quats = np.empty((len(lin_vel), 3)), np.empty((len(lin_vel), 4))
+        trajectories = [] if record else None
         for i, (v, w) in enumerate(zip(lin_vel, ang_vel)):
             place_at_rest(self.world, self.body, self.spec, self.orientation)
             pb.resetBaseVelocity(self.body, list(map(float, v)), list(map(float, w)), physicsClientId=cid)
             steps = rest = 0
-            while steps < total and rest < rest_needed:
+            track: list[tuple] = []
+            while True:
+                if record and steps % record == 0:
+                    track.append((*pb.getBasePositionAndOrientation(self.body, physicsClientId=cid),
+                                  *pb.getBaseVelocity(self.body, physicsClientId=cid)))
+                if steps >= total or rest >= rest_needed:
+                    break
                 self.world.step(chunk)
                 steps += chunk
                 lv, av = pb.getBaseVelocity(self.body, physicsClientId=cid)
@@ -265,10 +282,27 @@ class BulletRollout:
                 rest = rest + chunk if still else 0
             pos, orn = pb.getBasePositionAndOrientation(self.body, physicsClientId=cid)
             positions[i], quats[i] = pos, orn
+            if record:
+                trajectories.append(self._trajectory(track, pos, orn))
         # PyBullet's base frame is the principal frame: back to the mesh frame, R_mesh = R_base A^T
         quats = quat_multiply(quats, quat_conjugate(self.spec.principal_quat_xyzw))
         toppled = tilt_angle(self.orientation, quats) > TOPPLE_ANGLE
-        return Outcome(positions, quats, np.asarray(toppled), None)
+        return Outcome(positions, quats, np.asarray(toppled), trajectories)
+
+    def _trajectory(self, track: list[tuple], pos: Any, orn: Any) -> dict[str, Any]:
+        """The recorded states (and the final pose, where the roll-out stopped between two records) as the
+        trajectory keys of a prediction, in the mesh frame; topple "probability" 0 or 1 by the 45 degree rule."""
+        p = np.array([t[0] for t in track] + [pos], dtype=np.float64)
+        q = quat_multiply(np.array([t[1] for t in track] + [orn], dtype=np.float64),
+                          quat_conjugate(self.spec.principal_quat_xyzw))
+        v = np.array([t[2] for t in track] + [track[-1][2]], dtype=np.float64)
+        w = np.array([t[3] for t in track] + [track[-1][3]], dtype=np.float64)
+        if np.allclose(p[-1], p[-2]) and np.allclose(q[-1], q[-2]):  # it stopped on a record
+            p, q, v, w = p[:-1], q[:-1], v[:-1], w[:-1]
+        over = np.maximum.accumulate(tilt_angle(self.orientation, q) > TOPPLE_ANGLE)
+        return {"rate_hz": float(self.record_hz), "time": np.arange(len(p)) / float(self.record_hz), "com_position": p,
+                "orientation_xyzw": q, "linear_velocity": v, "angular_velocity": w,
+                "topple_probability": over.astype(np.float64), "checkpoint": self.name}
 
     def close(self) -> None:
         self.world.close()
@@ -297,15 +331,24 @@ def costs(goal: Goal, distance: np.ndarray, turn_miss: np.ndarray, toppled: np.n
 
 def cross_entropy_search(space: PushSpace, rollout: Callable[[np.ndarray, np.ndarray], Outcome], goal: Goal,
                          start: np.ndarray, orientation0: np.ndarray, deadline: float, rng: np.random.Generator,
-                         friction: float, gravity: float) -> dict[str, Any]:
+                         friction: float, gravity: float, screen: Callable[[np.ndarray, np.ndarray], Outcome] | None = None,
+                         screen_factor: int = 16, pool_size: int = 0, correct: bool = True) -> dict[str, Any]:
     """Rounds of candidates drawn from a Gaussian over the search coordinates (the heading wraps around),
     the ``ELITES`` best refit it; the best candidate ever seen is kept. A round starts only when the
     measured cost per candidate says it ends before ``deadline`` (``time.perf_counter()``), shrunk to fit;
-    the first round always runs. Returns the best push, its outcome and the counts."""
+    the first round always runs. With ``screen`` (a fast roll-out), each round draws ``screen_factor``
+    times as many candidates, rolls them all out with ``screen`` and only its best ones with ``rollout``:
+    elites, the best push and the answer's outcome are ``rollout``'s alone. Returns the best push, its
+    outcome and the counts (``candidates``: rolled out by ``rollout``; ``screened``: by ``screen``), and
+    in ``pool`` the ``pool_size`` best candidates seen, best first."""
     mean = space.toward(goal, friction, gravity)
     std = np.array([0.05, 0.3, 0.2, 0.15])  # heading +/- 18 deg, speed +/- 0.2 m/s around the straight push
     best: dict[str, Any] | None = None
-    evaluated = rounds = 0
+    pool: list[dict[str, Any]] = []
+    seen_u: list[np.ndarray] = []  # candidates both models rolled out, and the accurate one's differences
+    seen_dxy: list[np.ndarray] = []
+    seen_dturn: list[np.ndarray] = []
+    evaluated = rounds = screened = 0
     per_candidate = None
     size = FIRST_ROUND
     round_seconds: list[float] = []
@@ -315,25 +358,45 @@ def cross_entropy_search(space: PushSpace, rollout: Callable[[np.ndarray, np.nda
             if size < MIN_ROUND:
                 break
         t0 = time.perf_counter()
-        u = mean + std * rng.standard_normal((size, 4))
+        drawn = size if screen is None else size * max(int(screen_factor), 1)
+        u = mean + std * rng.standard_normal((drawn, 4))
         u[0] = mean  # the distribution's centre itself: the straight push first, then the best guess so far
         if rounds == 0:  # half the first round spread over the whole space: the straight push may be wrong
-            u[size // 2 :] = rng.uniform(size=(size - size // 2, 4))
+            u[drawn // 2 :] = rng.uniform(size=(drawn - drawn // 2, 4))
         u[:, 0] = np.mod(u[:, 0], 1.0)
         u[:, 1:] = np.clip(u[:, 1:], 0.0, 1.0)
         pushes = space.pushes(u)
+        if screen is not None:  # the fast model keeps the `size` most promising for the accurate one
+            fast = screen(pushes["lin_vel"], pushes["ang_vel"])
+            fast_xy, fast_turn = misses(goal, start, orientation0, fast.com_position, fast.orientation_xyzw)[:2]
+            if seen_u and correct:
+                # the accurate model's differences from the fast one at the nearest candidates it rolled out
+                d_xy, d_turn = _nearest_corrections(u, np.concatenate(seen_u), np.concatenate(seen_dxy), np.concatenate(seen_dturn))
+                fast_xy, fast_turn = fast_xy + d_xy, fast_turn + d_turn
+            fast_distance = np.linalg.norm(fast_xy - goal.xy, axis=1)
+            fast_turn_miss = np.zeros(drawn) if goal.yaw is None else np.abs(wrap_angle(fast_turn - goal.yaw))
+            fast_cost = costs(goal, fast_distance, fast_turn_miss, fast.toppled)
+            keep = np.argsort(fast_cost, kind="stable")[:size]
+            u = u[keep]
+            pushes = {k: v[keep] for k, v in pushes.items()}
+            raw_xy, raw_turn = misses(goal, start, orientation0, fast.com_position[keep], fast.orientation_xyzw[keep])[:2]
+            screened += drawn
         outcome = rollout(pushes["lin_vel"], pushes["ang_vel"])
         displacement, turn, distance, turn_miss = misses(goal, start, orientation0, outcome.com_position, outcome.orientation_xyzw)
+        if screen is not None:
+            seen_u.append(u.copy())
+            seen_dxy.append(displacement - raw_xy)
+            seen_dturn.append(wrap_angle(turn - raw_turn))
         cost = costs(goal, distance, turn_miss, outcome.toppled)
         evaluated += size
         rounds += 1
         i = int(np.argmin(cost))
         if best is None or cost[i] < best["cost"]:
-            best = {"cost": float(cost[i]), **{k: v[i] for k, v in pushes.items()},
-                    "final_com_position": outcome.com_position[i], "final_orientation_xyzw": outcome.orientation_xyzw[i],
-                    "displacement": displacement[i], "turn": float(turn[i]), "distance": float(distance[i]),
-                    "turn_miss": float(turn_miss[i]), "toppled": bool(outcome.toppled[i]),
-                    "trajectory": None if outcome.trajectories is None else outcome.trajectories[i]}
+            best = _candidate(i, cost, pushes, outcome, displacement, turn, distance, turn_miss)
+        if pool_size:  # the best few of the whole search, for a check at a finer step
+            pool += [_candidate(int(j), cost, pushes, outcome, displacement, turn, distance, turn_miss)
+                     for j in np.argsort(cost)[:pool_size]]
+            pool = sorted(pool, key=lambda c: c["cost"])[:pool_size]
         elites = u[np.argsort(cost)[: min(ELITES, size)]]
         # the heading's mean on the circle, its spread from the wrapped offsets
         angle = 2.0 * np.pi * elites[:, 0]
@@ -350,7 +413,56 @@ def cross_entropy_search(space: PushSpace, rollout: Callable[[np.ndarray, np.nda
                 and not (goal.upright and best["toppled"]):
             break  # well inside the tolerance: more rounds only spend the budget
     assert best is not None
-    return {**best, "candidates": evaluated, "rounds": rounds, "round_seconds": round_seconds}
+    return {**best, "candidates": evaluated, "screened": screened, "rounds": rounds, "round_seconds": round_seconds,
+            "pool": pool}
+
+
+def _nearest_corrections(u: np.ndarray, seen: np.ndarray, d_xy: np.ndarray, d_turn: np.ndarray,
+                         k: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """For each row of u (B, 4), the inverse-distance average of the corrections (d_xy (S, 2), d_turn (S,))
+    at its ``k`` nearest rows of ``seen`` (S, 4) in search coordinates, the heading's wrapped around.
+    Turns are averaged on the circle."""
+    diff = u[:, None, :] - seen[None, :, :]
+    diff[..., 0] = diff[..., 0] - np.round(diff[..., 0])  # the heading: a fraction of a turn, wrapped
+    dist = np.sqrt((diff**2).sum(-1)) + 1e-6
+    k = min(k, len(seen))
+    near = np.argpartition(dist, k - 1, axis=1)[:, :k]
+    w = 1.0 / np.take_along_axis(dist, near, axis=1)
+    w = w / w.sum(axis=1, keepdims=True)
+    xy = (w[..., None] * d_xy[near]).sum(axis=1)
+    turn = np.arctan2((w * np.sin(d_turn[near])).sum(axis=1), (w * np.cos(d_turn[near])).sum(axis=1))
+    return xy, turn
+
+
+def _candidate(i: int, cost: np.ndarray, pushes: dict, outcome: Outcome, displacement: np.ndarray, turn: np.ndarray,
+               distance: np.ndarray, turn_miss: np.ndarray) -> dict[str, Any]:
+    """Candidate i of a round: its push, its outcome and its misses."""
+    return {"cost": float(cost[i]), **{k: v[i] for k, v in pushes.items()},
+            "final_com_position": outcome.com_position[i], "final_orientation_xyzw": outcome.orientation_xyzw[i],
+            "displacement": displacement[i], "turn": float(turn[i]), "distance": float(distance[i]),
+            "turn_miss": float(turn_miss[i]), "toppled": bool(outcome.toppled[i]),
+            "trajectory": None if outcome.trajectories is None else outcome.trajectories[i]}
+
+
+def final_check(pool: list[dict[str, Any]], check: Callable[[np.ndarray, np.ndarray], Outcome], goal: Goal,
+                start: np.ndarray, orientation0: np.ndarray, deadline: float) -> tuple[dict[str, Any] | None, int]:
+    """The search's best candidates (``pool``, best first) rolled out again by ``check`` (PyBullet at a finer
+    step), one at a time while the measured cost of one says it ends before ``deadline``; the first always
+    runs. Returns the best by ``check``'s outcome (its misses and pose replace the search's; no trajectory)
+    and the seconds each check took."""
+    best, seconds = None, []
+    for cand in pool:
+        if seconds and time.perf_counter() + max(seconds) > deadline:
+            break
+        t0 = time.perf_counter()
+        outcome = check(cand["lin_vel"][None], cand["ang_vel"][None])
+        displacement, turn, distance, turn_miss = misses(goal, start, orientation0, outcome.com_position, outcome.orientation_xyzw)
+        cost = costs(goal, distance, turn_miss, outcome.toppled)
+        seconds.append(time.perf_counter() - t0)
+        if best is None or cost[0] < best["cost"]:
+            pushes = {k: cand[k][None] for k in ("push_direction", "push_point", "push_speed", "impulse", "lin_vel", "ang_vel")}
+            best = _candidate(0, cost, pushes, outcome, displacement, turn, distance, turn_miss)
+    return best, seconds
 
 
 def horizon_seconds(speed_max: float, friction: float, gravity: float) -> float:
@@ -359,12 +471,46 @@ def horizon_seconds(speed_max: float, friction: float, gravity: float) -> float:
     return float(min(1.5 * speed_max / (friction * abs(gravity)) + 0.5, PhysicsConfig().max_duration))
 
 
+def check_search(search: Any, pybullet_step: Any, screen: Any) -> float:
+    """The PyBullet step of a valid search (s), or a one-line ``PredictionError``."""
+    if search not in SEARCHES:
+        raise PredictionError(f"search must be one of {', '.join(SEARCHES)}, got {search!r}")
+    try:
+        time_step = float(pybullet_step)
+    except (TypeError, ValueError):
+        raise PredictionError(f"the PyBullet step must be a number of seconds, e.g. 1/240, got {pybullet_step!r}") from None
+    if not 0 < time_step <= 0.1:
+        raise PredictionError(f"the PyBullet step must be in (0, 0.1] s, e.g. 0.004167 (1/240), got {pybullet_step!r}")
+    if search == "screened" and screen not in SCREENS and not hasattr(screen, "predict_many"):
+        raise PredictionError(f"screen must be one of {', '.join(SCREENS)} (or a Predictor), got {screen!r}")
+    return time_step
+
+
+def screen_predictor(predictor: Any, screen: Any, physics: PhysicsConfig) -> Any:
+    """The fast model of a screened search: the contact prior (one per predictor, kept), the predictor's
+    networks without simulator, or a ``Predictor`` given."""
+    if screen == "prior":
+        if getattr(predictor, "_contact_prior", None) is None:
+            from physdyn.predict.predictor import contact_prior_predictor
+
+            predictor._contact_prior = contact_prior_predictor(physics, predictor.rate_hz)
+        return predictor._contact_prior
+    if screen == "model":
+        return predictor.without_simulator()
+    return screen
+
+
 def plan_push(predictor: Any, mesh: Any, goal_xy: Any, goal_yaw: Any = None, upright: bool = False, budget_s: float = 1.0,
               scale: float = 1.0, orientation_xyzw: Any = None, seed: int = 0, speed_min: float | None = None,
               speed_max: float | None = None, height_fraction: float | None = None, lateral_fraction: float | None = None,
-              verify: bool = False, model: Any = None) -> dict[str, Any]:
-    """``Predictor.plan``: see its docstring. ``model``: None (the predictor's), or a PyBullet time step in
-    seconds (e.g. 1/240) for the same search with PyBullet as its model."""
+              verify: bool = False, search: str = "screened", pybullet_step: float = DEFAULT_PYBULLET_STEP,
+              screen: Any = "prior", check: bool = True) -> dict[str, Any]:
+    """``Predictor.plan``: see its docstring. ``search``: "screened" (``screen`` rolls out ``SCREEN_FACTOR``
+    times as many candidates as PyBullet at ``pybullet_step``, which ranks the most promising), "model"
+    (the predictor's model alone) or "pybullet" (PyBullet at ``pybullet_step`` alone). ``screen``: "prior"
+    (``contact_prior_predictor``), "model" (``Predictor.without_simulator``) or a ``Predictor``. ``check``:
+    the ``CHECK_POOL`` best candidates rolled out again at the conventions' step in the last ``CHECK_SHARE``
+    of the budget, the best by that check answering."""
     from physdyn.predict.predictor import check_orientation
 
     defaults = ImpulseConfig()
@@ -375,20 +521,16 @@ def plan_push(predictor: Any, mesh: Any, goal_xy: Any, goal_yaw: Any = None, upr
     physics = predictor.physics or PhysicsConfig()
     goal = check_goal(goal_xy, goal_yaw, upright, hi, physics)
     budget = check_budget(budget_s)
-    if model is not None:
-        try:
-            time_step = float(model)
-        except (TypeError, ValueError):
-            raise PredictionError(f"model must be None (the predictor's) or a PyBullet time step in seconds, got {model!r}") from None
-        if not 0 < time_step <= 0.1:
-            raise PredictionError(f"model time step must be in (0, 0.1] s, e.g. 1/240, got {model!r}")
+    time_step = check_search(search, pybullet_step, screen)
     q0 = check_orientation(orientation_xyzw)
     body = predictor._bodies([mesh], [scale])[0]
     friction = physics.lateral_friction_object * physics.lateral_friction_ground
     seconds = horizon_seconds(hi, friction, physics.gravity)
-    rollout = (LearnedRollout(predictor, body, q0, seconds) if model is None
+    rollout = (LearnedRollout(predictor, body, q0, seconds) if search == "model"
                else BulletRollout(body.spec, q0, time_step, seconds, physics))
-    warm_up = rollout.warm_up()
+    fast = LearnedRollout(screen_predictor(predictor, screen, physics), body, q0, seconds) if search == "screened" else None
+    check_step = physics.time_step if check else None
+    warm_up = rollout.warm_up() + (fast.warm_up() if fast is not None else 0.0)
     # the budget's clock: from here, the mesh's preparation (cached per predictor) and a cold process's
     # one-time set-up excluded, the push world, every round and the choice included
     started = time.perf_counter()
@@ -398,9 +540,21 @@ def plan_push(predictor: Any, mesh: Any, goal_xy: Any, goal_yaw: Any = None, upr
         response = PushResponse(body.spec, q0, physics)
         try:
             space = PushSpace(response, lo, hi, height, lateral)
-            best = cross_entropy_search(space, rollout, goal, start, q0, started + budget, rng, friction, physics.gravity)
+            search_deadline = started + budget * (1.0 - (CHECK_SHARE if check_step else 0.0))
+            best = cross_entropy_search(space, rollout, goal, start, q0, search_deadline, rng, friction, physics.gravity,
+                                        fast, SCREEN_FACTOR, CHECK_POOL if check_step else 0)
         finally:
             response.close()
+        check_seconds, answered_by = [], rollout.name
+        if check_step:
+            checker = BulletRollout(body.spec, q0, float(check_step), seconds, physics, record_hz=predictor.rate_hz)
+            try:
+                found, check_seconds = final_check(best["pool"], checker, goal, start, q0, started + budget)
+            finally:
+                checker.close()
+            if found is not None:
+                counts = {k: best[k] for k in ("candidates", "screened", "rounds", "round_seconds")}
+                best, answered_by = {**found, **counts}, checker.name
     finally:
         rollout.close()
     elapsed = time.perf_counter() - started
@@ -413,7 +567,9 @@ def plan_push(predictor: Any, mesh: Any, goal_xy: Any, goal_yaw: Any = None, upr
         "goal": goal.as_dict(),
         "budget_s": budget, "elapsed_s": elapsed, "candidates": int(best["candidates"]), "rounds": int(best["rounds"]),
         "round_s": [float(t) for t in best["round_seconds"]],
-        "warm_up_s": warm_up, "model": rollout.name, "horizon_s": seconds,
+        "warm_up_s": warm_up, "search": search, "model": rollout.name, "horizon_s": seconds,
+        "screen": None if fast is None else fast.name, "screened": int(best["screened"]),
+        "checked": len(check_seconds), "check_s": [float(t) for t in check_seconds], "answered_by": answered_by,
         "orientation_xyzw": q0, "com_mesh": np.array(body.spec.com_mesh, dtype=np.float64), "mesh": body.name,
         "mesh_scale": body.scale, "rate_hz": predictor.rate_hz, "seed": int(seed),
         "bounds": {"speed_min": lo, "speed_max": hi, "height_fraction": height, "lateral_fraction": lateral},

@@ -12,6 +12,8 @@ Arrays in a result are float64 numpy arrays: T = round(seconds * rate_hz) + 1 st
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import math
 import os
 import warnings
@@ -253,10 +255,33 @@ class Predictor:
         self._prepared.clear()
         forget_clouds()
 
+    def without_simulator(self) -> "Predictor":
+        """This predictor's networks with nothing simulated at inference: no simulated start
+        (``model.sim_seconds`` = 0) and no topple classifier that simulates (``fit-topple --physics``;
+        toppling then comes from the head, or the 45 degree rule on the predicted poses). The weights and
+        the prepared meshes are shared; this predictor itself is returned when it simulates nothing. The
+        planner screens candidates with it (docs/plan.md)."""
+        model = self.model
+        classifier = getattr(model, "topple_classifier", None)
+        simulating_classifier = classifier is not None and bool(getattr(classifier, "physics", False))
+        if not sim_steps(model) and not simulating_classifier:
+            return self
+        if getattr(self, "_fast", None) is not None:
+            return self._fast
+        fast = copy.copy(model)  # a shallow copy: the same modules and weights, its own settings
+        fast.config = dataclasses.replace(model.config, model=dataclasses.replace(model.config.model, sim_seconds=0.0))
+        if simulating_classifier:
+            fast.topple_classifier = None
+        out = Predictor.__new__(Predictor)
+        out.model, out.name, out.physics, out._prepared = fast, f"{self.name} without simulator", self.physics, self._prepared
+        self._fast = out
+        return out
+
     def plan(self, mesh: Any, goal_xy: Any, goal_yaw: Any = None, upright: bool = False, budget_s: float = 1.0,
              scale: float = 1.0, orientation_xyzw: Any = None, seed: int = 0, speed_min: float | None = None,
              speed_max: float | None = None, height_fraction: float | None = None, lateral_fraction: float | None = None,
-             verify: bool = False, model: Any = None) -> dict[str, Any]:
+             verify: bool = False, search: str = "screened", pybullet_step: float = 1.0 / 240.0, screen: Any = "prior",
+             check: bool = True) -> dict[str, Any]:
         """The push that moves ``mesh`` (placed as ``predict`` places it) by ``goal_xy`` (2,) m on the plane,
         turned by ``goal_yaw`` degrees about the vertical (counter-clockwise from above positive; None: any
         turn), not toppled if ``upright``: a cross-entropy search over the push point (height band, sideways
@@ -264,18 +289,25 @@ class Predictor:
         seconds of wall clock (``planner.py``). Bounds default to the training pushes' (``ImpulseConfig``).
         A goal not met within the budget is still answered: the best push and its predicted miss.
 
+        ``search``: "screened" (default: each round the contact prior, ``screen="prior"``, or this
+        predictor's networks without simulator, ``screen="model"``, rolls out 16 times as many candidates as
+        PyBullet at ``pybullet_step`` on the mesh's hull, which ranks the most promising), "model" (this
+        predictor's model alone) or "pybullet" (PyBullet at ``pybullet_step`` alone). ``check``: the last
+        fifth of the budget rolls the 8 best candidates out again at the conventions' step, and the best by
+        that check is the answer (``answered_by``). Why these defaults: docs/plan.md, Benchmark.
+
         Returns ``lin_vel``, ``ang_vel`` (3,) world frame (what ``predict`` takes), ``push_point``,
-        ``push_direction``, ``push_speed``, ``push_impulse``, ``predicted`` (the trajectory keys, the final
-        pose, ``miss_m``, ``miss_yaw_deg``, ``met``), ``goal``, ``budget_s``, ``elapsed_s``, ``candidates``,
-        ``rounds`` and the inputs (docs/plan.md); ``verify=True`` adds ``verified``: PyBullet at the
-        conventions' step from the same start, a check the search never sees. ``model``: a PyBullet time
-        step in seconds (e.g. 1/240) to search with PyBullet instead of this predictor's model.
-        Bad goals (not finite, beyond the speed bounds' reach) and budgets raise ``PredictionError``.
+        ``push_direction``, ``push_speed``, ``push_impulse``, ``predicted`` (the answering model's trajectory,
+        final pose, ``miss_m``, ``miss_yaw_deg``, ``met``), ``goal``, ``budget_s``, ``elapsed_s``,
+        ``candidates``, ``screened``, ``checked``, ``rounds`` and the inputs (docs/plan.md); ``verify=True``
+        adds ``verified``: PyBullet at the conventions' step on the mesh until at rest, a check the search
+        never sees. Bad goals (not finite, beyond the speed bounds' reach), budgets and search settings raise
+        ``PredictionError``.
         """
         from physdyn.predict.planner import plan_push  # the planner builds on this class's roll-outs
 
         return plan_push(self, mesh, goal_xy, goal_yaw, upright, budget_s, scale, orientation_xyzw, seed, speed_min,
-                         speed_max, height_fraction, lateral_fraction, verify, model)
+                         speed_max, height_fraction, lateral_fraction, verify, search, pybullet_step, screen, check)
 
     def _bodies(self, meshes: list, scales: list) -> list[PreparedBody]:
         """Each request's ``PreparedBody``. A mesh this predictor prepared before, in this call or an
@@ -337,6 +369,27 @@ def resolve_device(device: str) -> str:
     if name != "cpu":
         raise PhysdynError(f"device '{device}': use cpu, cuda or auto")
     return name
+
+
+def contact_prior_predictor(physics: Any = None, rate_hz: float = 15.0, num_points: int = 256) -> Predictor:
+    """The contact prior alone as a ``Predictor`` (``configs/experiment/contact_prior.yaml``: no network, nothing
+    learned, never topples): Coulomb friction integrated over the footprint of the mesh's ``hull_surface``
+    cloud with the body's own spin inertia, at the friction of ``physics`` (default: the conventions'). About
+    0.1 ms a trajectory in a batch of one mesh's pushes; the planner screens candidates with it."""
+    from physdyn.config import PRESETS, PhysicsConfig
+    from physdyn.data.normalization import Normalization
+    from physdyn.models.dynamics_module import DynamicsModel
+    from physdyn.models.training import load_experiment_config
+
+    physics = physics or PhysicsConfig()
+    cfg = load_experiment_config(PRESETS / "experiment" / "contact_prior.yaml", [])
+    info = {"rate_hz": float(rate_hz), "num_points": int(num_points), "points_method": "hull_surface",
+            "friction": physics.lateral_friction_object * physics.lateral_friction_ground, "gravity": abs(physics.gravity)}
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Initializing zero-element tensors")  # the head on no features
+        model = DynamicsModel(cfg, Normalization(mode="std_inputs", input_mean=(0.0,) * 6, input_std=(1.0,) * 6), info)
+    model.eval()
+    return Predictor(model, name="contact prior", physics=physics)
 
 
 def load_predictor(checkpoint: Any = None, physics: Any = None, device: str = "cpu") -> Predictor:

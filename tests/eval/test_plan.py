@@ -121,17 +121,55 @@ def test_a_box_plan_meets_the_2_cm_15_deg_goal_in_pybullet(predictor, box, seed)
     assert plan["verified"]["met"], plan["verified"]["miss_m"]
 
 
-@pytest.mark.parametrize("model", [None, 1 / 60])
-def test_the_budget_is_respected_and_an_unmet_goal_is_still_answered(predictor, box, model):
-    plan = predictor.plan(box, [0.2, -0.3], goal_yaw=170, upright=True, budget_s=0.3, model=model)
+@pytest.mark.parametrize("search, check", [("screened", True), ("model", False), ("pybullet", True)])
+def test_the_budget_is_respected_and_an_unmet_goal_is_still_answered(predictor, box, search, check):
+    plan = predictor.plan(box, [0.2, -0.3], goal_yaw=170, upright=True, budget_s=0.3, search=search,
+                          pybullet_step=1 / 60, check=check)
     assert plan["candidates"] >= 1 and plan["rounds"] == len(plan["round_s"]) >= 1
     # the first round always runs (16 candidates); a later one starts only when its measured cost says it
-    # ends within the budget: the overrun is at most part of one round
-    assert plan["elapsed_s"] <= 0.3 + max(plan["round_s"]) + 0.05
+    # ends within the budget, and so does a checked candidate after the first: the overrun is at most part
+    # of one round and one check
+    assert plan["elapsed_s"] <= 0.3 + max(plan["round_s"]) + max(plan["check_s"], default=0.0) + 0.05
     assert plan["budget_s"] == 0.3 and np.isfinite(plan["predicted"]["miss_m"]) and np.all(np.isfinite(plan["lin_vel"]))
+    assert (plan["screened"] >= 16 * plan["candidates"]) == (search == "screened")
+    assert (plan["checked"] >= 1) == check and len(plan["check_s"]) == plan["checked"]
+
+
+def test_a_screened_plan_is_answered_by_its_check_which_is_what_pybullet_gives(predictor, box):
+    """The default search: the contact prior screens, PyBullet at 1/240 s ranks, and the final check at the
+    conventions' step answers, so the plan's predicted miss is the verification's."""
+    goal_xy, goal_yaw = _real_push_goal(box, direction_deg=20.0, speed=1.1)
+    plan = predictor.plan(box, goal_xy, goal_yaw=goal_yaw, upright=True, budget_s=1.0, verify=True, seed=3)
+    assert plan["search"] == "screened" and plan["screen"] == "contact prior" and plan["model"] == "pybullet@1/240s"
+    assert plan["answered_by"] == "pybullet@1/960s" and plan["checked"] >= 1
+    assert plan["predicted"]["miss_m"] == pytest.approx(plan["verified"]["miss_m"], abs=2e-3)
+    assert plan["predicted"]["miss_yaw_deg"] == pytest.approx(plan["verified"]["miss_yaw_deg"], abs=1.0)
+    assert plan["predicted"]["met"] == plan["verified"]["met"]
+    # the check's trajectory is kept at the model's rate, from the post-push state to the final pose
+    traj = plan["predicted"]
+    assert traj["rate_hz"] == predictor.rate_hz and len(traj["time"]) == len(traj["com_position"]) >= 2
+    np.testing.assert_allclose(traj["linear_velocity"][0], plan["lin_vel"], atol=1e-6)
+    np.testing.assert_allclose(traj["com_position"][-1], traj["final_com_position"], atol=1e-12)
+
+
+def test_the_nearest_corrections_carry_the_accurate_models_differences_to_new_candidates():
+    from physdyn.predict.planner import _nearest_corrections
+
+    seen = np.array([[0.1, 0.5, 0.5, 0.5], [0.6, 0.5, 0.5, 0.5]])
+    d_xy, d_turn = np.array([[0.01, 0.0], [0.0, -0.02]]), np.array([0.2, 3.1])
+    # at a seen candidate its own correction (the heading wraps: 0.1 + 1 is the same push)
+    xy, turn = _nearest_corrections(np.array([[1.0999999, 0.5, 0.5, 0.5], [0.6, 0.5, 0.5, 0.5]]), seen, d_xy, d_turn, k=2)
+    np.testing.assert_allclose(xy, d_xy, atol=1e-4)
+    np.testing.assert_allclose(turn, d_turn, atol=1e-4)
+    # halfway, the average, turns averaged on the circle (3.1 and -3.1 average to pi, not 0)
+    _, turn = _nearest_corrections(np.array([[0.35, 0.5, 0.5, 0.5]]), seen, d_xy, np.array([3.1, -3.1]), k=2)
+    assert abs(abs(turn[0]) - math.pi) < 1e-6
 
 
 @pytest.mark.parametrize("kwargs, text", [
+    ({"goal_xy": [0.1, 0], "search": "gradient"}, "search must be one of"),
+    ({"goal_xy": [0.1, 0], "search": "pybullet", "pybullet_step": 0}, "PyBullet step"),
+    ({"goal_xy": [0.1, 0], "screen": "networks"}, "screen must be one of"),
     ({"goal_xy": [float("nan"), 0]}, "finite"),
     ({"goal_xy": [3.0, 0]}, "beyond"),
     ({"goal_xy": [0.1, 0], "budget_s": 0}, "budget"),

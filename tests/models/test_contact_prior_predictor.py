@@ -1,0 +1,66 @@
+"""The contact prior alone as a predictor (``model.predictor: none``, ``contact_prior_predictor``): what the
+planner screens with. Real roll-outs of a box against Coulomb's law."""
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+import trimesh
+
+from physdyn.predict.predictor import contact_prior_predictor
+from physdyn.registry import PREDICTORS
+
+
+@pytest.fixture(scope="module")
+def prior():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return contact_prior_predictor()
+
+
+@pytest.fixture(scope="module")
+def box():
+    return trimesh.creation.box((0.12, 0.08, 0.05))
+
+
+def test_none_is_a_registered_predictor_with_no_features():
+    import torch
+
+    net = PREDICTORS.build("none", {}, "model.predictor.params", input_dim=22)
+    features, state = net(torch.zeros(3, 5, 22))
+    assert features.shape == (3, 5, 0) and state is None and not list(net.parameters())
+
+
+def test_a_slide_without_spin_stops_where_coulomb_friction_stops_it(prior, box):
+    mu_g = 0.25 * 9.81
+    result = prior.predict(box, [1.2, 0.0, 0.0], [0.0, 0.0, 0.0], seconds=1.0)
+    distance = result["com_position"][-1, 0] - result["com_position"][0, 0]
+    # Coulomb's v^2 / (2 mu g), less the half sub-step the prior's semi-implicit Euler loses (1/240 s sub-steps)
+    assert distance == pytest.approx(1.2**2 / (2 * mu_g) - 1.2 * (1 / 240) / 2, abs=5e-4)
+    assert np.abs(result["com_position"][-1, 1:] - result["com_position"][0, 1:]).max() < 1e-6
+    np.testing.assert_allclose(result["linear_velocity"][-1], 0.0, atol=1e-6)
+    assert result["topple_probability"] is None and not result["toppled"]  # it never topples
+
+
+def test_a_spinning_slide_goes_farther_turns_with_its_spin_and_both_stop_together(prior, box):
+    still = prior.predict(box, [1.2, 0.0, 0.0], [0.0, 0.0, 0.0], seconds=1.0)
+    spun = prior.predict(box, [1.2, 0.0, 0.0], [0.0, 0.0, 8.0], seconds=1.0)
+    # friction over a spinning footprint points partly across the travel, so less of it slows the slide
+    travel = lambda r: np.linalg.norm(r["com_position"][-1, :2] - r["com_position"][0, :2])  # noqa: E731
+    assert travel(spun) > travel(still) + 0.01
+    q = spun["orientation_xyzw"][-1]
+    yaw = 2 * math.atan2(q[2], q[3])
+    assert yaw > 0.3  # counter-clockwise, as the spin
+    np.testing.assert_allclose(spun["linear_velocity"][-1], 0.0, atol=1e-6)
+    np.testing.assert_allclose(spun["angular_velocity"][-1], 0.0, atol=1e-6)
+
+
+def test_its_roll_outs_are_batched_as_one_requests(prior, box):
+    v = np.array([[1.0, 0.2, 0.0], [0.6, -0.5, 0.0], [1.5, 0.0, 0.0]])
+    w = np.array([[0.0, 0.0, 3.0], [0.0, 0.0, -6.0], [0.0, 0.0, 0.0]])
+    many = prior.predict_many([box] * 3, v, w, seconds=1.2)
+    for i in range(3):
+        one = prior.predict(box, v[i], w[i], seconds=1.2)
+        np.testing.assert_allclose(many[i]["com_position"], one["com_position"], atol=1e-5)
+        np.testing.assert_allclose(many[i]["orientation_xyzw"], one["orientation_xyzw"], atol=1e-5)
