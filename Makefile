@@ -34,14 +34,20 @@ quickstart: install
 	physdyn predict examples/meshes/bracket_mm.obj --scale 0.001 --lin-vel 1.2 0 0 --ang-vel 0 0 3 --seconds 4 \
 		--checkpoint runs/quickstart/hybrid.ckpt --compare-sim --out reports/quickstart/bracket.json \
 		--render reports/quickstart/bracket.html --overwrite
+	@# where the model stands against just running PyBullet on meshes new to it (docs/performance.md)
+	$(PYTHON) benchmarks/frontier.py --sets pybullet --meshes 12 --pushes 5 --one-meshes 1 --one-mesh-pushes 64 \
+		--predictor quickstart=runs/quickstart/hybrid.ckpt --out reports/quickstart/frontier.md \
+		--plot reports/quickstart/frontier.png
 	@echo
 	@echo "results:"
 	@echo "  dataset        data/quickstart.zarr        (physdyn data info data/quickstart.zarr)"
 	@echo "  model          runs/quickstart/best.ckpt, best_topple.ckpt (+ topple classifier), hybrid.ckpt (+ simulated start; logs: runs/quickstart/csv, tensorboard)"
 	@echo "  test report    reports/quickstart/report.md, metrics.json, *.png, viewer.html (open in a browser)"
 	@echo "  prediction     reports/quickstart/bracket.json, reports/quickstart/bracket.html (open in a browser)"
+	@echo "  frontier       reports/quickstart/frontier.md, frontier.png (the model beside PyBullet at 5 steps, new meshes)"
 	@echo
 	@$(PYTHON) -c "import json; print('verdict:', json.load(open('reports/quickstart/metrics.json'))['verdict'])"
+	@grep "against PyBullet at 1/120 s" reports/quickstart/frontier.md | sed 's/^/verdict: /'
 
 test: install
 	$(PYTHON) -m pytest

@@ -81,7 +81,7 @@ from physdyn.eval.metrics import rotation_angle_deg  # noqa: E402
 from physdyn.geometry.mesh_io import MESH_EXTENSIONS, load_mesh  # noqa: E402
 from physdyn.models.export import export_checkpoint  # noqa: E402
 from physdyn.predict.body import prepare_body  # noqa: E402
-from physdyn.predict.predictor import BUNDLED_CHECKPOINT, Predictor, load_predictor  # noqa: E402
+from physdyn.predict.predictor import BUNDLED_CHECKPOINT, Predictor, contact_prior_predictor, load_predictor  # noqa: E402
 from physdyn.sim import cloud_body  # noqa: E402
 from physdyn.sim.bullet import pb  # noqa: E402
 from physdyn.sim.trajectory import place_at_rest, record  # noqa: E402
@@ -664,15 +664,17 @@ def networks_checkpoint(work: Path) -> Path:
 
 
 def load_predictors(specs: list[str], work: Path) -> dict[str, Predictor]:
-    """``NAME=CHECKPOINT`` -> predictors; CHECKPOINT is a path, ``bundled`` or ``networks`` (the bundled
-    model's networks alone)."""
+    """``NAME=CHECKPOINT`` -> predictors; CHECKPOINT is a path, ``bundled``, ``networks`` (the bundled
+    model's networks alone) or ``contact_prior`` (the contact prior alone, no network: the planner's screen)."""
     predictors = {}
     for spec in specs:
         name, sep, checkpoint = spec.partition("=")
         if not (sep and name and checkpoint):
-            raise SystemExit(f"--predictor {spec!r}: use NAME=CHECKPOINT (a path, 'bundled' or 'networks')")
+            raise SystemExit(f"--predictor {spec!r}: use NAME=CHECKPOINT (a path, 'bundled', 'networks' or 'contact_prior')")
         if checkpoint == "bundled":
             predictors[name] = load_predictor()
+        elif checkpoint == "contact_prior":
+            predictors[name] = contact_prior_predictor()
         elif checkpoint == "networks":
             predictors[name] = load_predictor(str(networks_checkpoint(work)))
         else:
@@ -724,6 +726,34 @@ def skipped_line(result: dict) -> str:
     return "Skipped: " + "; ".join(f"{s['mesh']} ({s['reason']})" for s in result["skipped"]) if result["skipped"] else ""
 
 
+def verdicts(set_name: str, rows: list[dict], hz: int = 120) -> list[str]:
+    """One line per physdyn predictor of regime (a): where it stands against PyBullet at 1/hz s on the
+    set's new meshes (the issue's bar: no worse in position, rotation and toppling, and no dearer)."""
+    reference = next((r for r in rows if r["kind"] == "pybullet" and r["hz"] == hz), None)
+    if reference is None:
+        return []
+    lines = []
+    for row in (r for r in rows if r["kind"] == "physdyn"):
+        pairs = [("position / sliding", row["position_over_sliding"], reference["position_over_sliding"], "{:.2f}", False),
+                 ("rotation", row["rotation_deg"], reference["rotation_deg"], "{:.1f} deg", False),
+                 ("topple accuracy", row["topple_accuracy"], reference["topple_accuracy"], "{:.3f}", True),
+                 ("ms for a new mesh", row["ms"]["one"], reference["ms"]["one"], "{:.1f}", False)]
+        better = [(ours >= theirs) if higher else (ours <= theirs) for _, ours, theirs, _, higher in pairs]
+        figures = ", ".join(f"{label} {fmt_.format(ours)} vs {fmt_.format(theirs)}" for label, ours, theirs, fmt_, _ in pairs)
+        if all(better):
+            word = "as accurate or better, and as cheap or cheaper: on the frontier beside it"
+        elif not any(better):
+            word = "less accurate on every figure and dearer: dominated"
+        elif not any(better[:3]):
+            word = "cheaper, less accurate on every figure"
+        elif not better[3] and not all(better[:3]):
+            word = "dearer, and less accurate on " + ", ".join(p[0] for p, b in zip(pairs[:3], better[:3]) if not b)
+        else:
+            word = "less accurate on " + ", ".join(p[0] for p, b in zip(pairs[:3], better[:3]) if not b)
+        lines.append(f"{row['name']} against PyBullet at 1/{hz} s on {set_name}'s new meshes: {figures}: {word}.")
+    return lines
+
+
 def report(results: dict[str, dict], header: list[str]) -> str:
     """The markdown page: the command and machine, then per set its tables and skipped meshes."""
     parts = ["# The accuracy-cost frontier (benchmarks/frontier.py)", "", *[f"- {line}" for line in header], "",
@@ -732,7 +762,7 @@ def report(results: dict[str, dict], header: list[str]) -> str:
         parts += [f"## {set_name}", ""]
         for regime in ("new_meshes", "one_mesh"):
             parts += [result[regime]["header"], "", table(result[regime]["rows"]), ""]
-        parts += [skipped_line(result), ""]
+        parts += [*verdicts(set_name, result["new_meshes"]["rows"]), "", skipped_line(result), ""]
     return "\n".join(parts)
 
 
@@ -745,8 +775,8 @@ def parse_args() -> argparse.Namespace:
     ap.add_argument("--one-mesh-pushes", type=int, default=512, help="pushes of each mesh, regime (b)")
     ap.add_argument("--one-mesh-seconds", type=float, default=2.0, help="horizon of regime (b)")
     ap.add_argument("--predictor", action="append", default=None, metavar="NAME=CHECKPOINT",
-                    help="a physdyn predictor (repeatable); CHECKPOINT: a path, 'bundled' or 'networks' (the bundled "
-                         f"model exported with model.sim_seconds=0); default: {' '.join(DEFAULT_PREDICTORS)}")
+                    help="a physdyn predictor (repeatable); CHECKPOINT: a path, 'bundled', 'networks' (the bundled "
+                         f"model exported with model.sim_seconds=0) or 'contact_prior' (no network); default: {' '.join(DEFAULT_PREDICTORS)}")
     ap.add_argument("--work", default="runs/frontier", help="meshes, the wheel, truth stores (reused when present)")
     ap.add_argument("--out", default=None, help="markdown report; the figures go beside it as .json "
                                                 "(default reports/frontier/frontier.md)")
@@ -781,6 +811,8 @@ def main() -> None:
             print(f"\n{result[regime]['header']}\n{table(result[regime]['rows'])}", flush=True)
         if result["skipped"]:
             print(skipped_line(result), flush=True)
+        for line in verdicts(set_name, result["new_meshes"]["rows"]):
+            print(line, flush=True)
     header.append(f"{time.perf_counter() - started:.0f} s in all; load average {os.getloadavg()[0]:.2f} at the end")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(report(results, header))

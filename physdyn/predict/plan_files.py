@@ -48,12 +48,18 @@ def plan_summary(result: dict[str, Any]) -> str:
             f"{point[2]:.3f}) m: predicted miss {miss(result['predicted'])}")
     if "verified" in result:
         line += f"; PyBullet check {miss(result['verified'])}"
-    return (line + f"; goal ({goal['xy'][0]:.3f}, {goal['xy'][1]:.3f}) m, {result['candidates']} candidates in "
-            f"{result['elapsed_s']:.2f} s of {result['budget_s']:g} s ({result['model']})")
+    searched = f"{result['candidates']} candidates"
+    if result.get("screened"):
+        searched = f"{result.get('screened')} screened by the {result.get('screen')}, {searched} by {result['model']}"
+    else:
+        searched += f" by {result['model']}"
+    if result.get("checked"):
+        searched += f", the best {result['checked']} checked by {result.get('answered_by')}"
+    return line + f"; goal ({goal['xy'][0]:.3f}, {goal['xy'][1]:.3f}) m; {searched} in {result['elapsed_s']:.2f} s of {result['budget_s']:g} s"
 
 
 def write_plan_viewer(result: dict[str, Any], mesh: Any, path: str | Path, overwrite: bool = False) -> Path:
-    """The viewer page (docs/viewer.md): the model's roll-out of the planned push, beside PyBullet's check
+    """The viewer page (docs/viewer.md): the answering model's roll-out of the planned push, beside PyBullet's check
     (with verify) as the ghost; the goal and the misses in the scene's notes. ``mesh``: the prepared body."""
     from physdyn.viz.viewer import Trajectory, ViewerScene, check_viewer_path, write_viewer
 
@@ -64,7 +70,7 @@ def write_plan_viewer(result: dict[str, Any], mesh: Any, path: str | Path, overw
     if predicted is None or "com_position" not in predicted:
         from physdyn.errors import PredictionError
 
-        raise PredictionError("this plan holds no trajectory to draw; plan with the learned model or pass --verify")
+        raise PredictionError("this plan holds no trajectory to draw; plan with its final check (the default) or pass --verify")
     p, q = np.asarray(predicted["com_position"]), np.asarray(predicted["orientation_xyzw"])
     reference = None
     if verified is not None and verified is not predicted:
@@ -79,7 +85,8 @@ def write_plan_viewer(result: dict[str, Any], mesh: Any, path: str | Path, overw
     scene = ViewerScene(title=f"plan: {Path(str(result['mesh'])).name}", rate_hz=float(result["rate_hz"]),
                         vertices=np.asarray(mesh.mesh.vertices), faces=np.asarray(mesh.mesh.faces),
                         com_mesh=np.asarray(result["com_mesh"], np.float64),
-                        predicted=Trajectory("plan (model)", p, q, None, predicted["toppled"]), reference=reference, notes=notes)
+                        predicted=Trajectory(f"plan ({result.get('answered_by') or result['model']})", p, q, None,
+                                             predicted["toppled"]), reference=reference, notes=notes)
     return write_viewer([scene], path, title=f"physdyn plan: {Path(path).stem}", overwrite=overwrite)
 
 

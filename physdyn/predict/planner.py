@@ -547,7 +547,9 @@ def plan_push(predictor: Any, mesh: Any, goal_xy: Any, goal_yaw: Any = None, upr
             response.close()
         check_seconds, answered_by = [], rollout.name
         if check_step:
-            checker = BulletRollout(body.spec, q0, float(check_step), seconds, physics, record_hz=predictor.rate_hz)
+            # until at rest, as the verification runs: a candidate still turning at the search's horizon is
+            # judged where it stops
+            checker = BulletRollout(body.spec, q0, float(check_step), VERIFY_SECONDS, physics, record_hz=predictor.rate_hz)
             try:
                 found, check_seconds = final_check(best["pool"], checker, goal, start, q0, started + budget)
             finally:
