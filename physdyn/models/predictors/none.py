@@ -18,7 +18,7 @@ from physdyn.registry import PREDICTORS
 
 @PREDICTORS.register("none")
 class NoPredictor(StatePredictor):
-    """Per-step features of width 0; no state."""
+    """No network: features of width 0, so the model rolls out its prior (model.prior) exactly."""
 
     @dataclass
     class Config:
