@@ -2,10 +2,13 @@
 rolled out at once by a model, within a wall-clock budget (``plan_push``; ``Predictor.plan`` calls it).
 
 The data flow: goal checks -> ``PushSpace`` (search coordinates -> push point, direction, speed ->
-post-push velocities, ``push.py``) -> a roll-out (``LearnedRollout``: the predictor's batched model;
-``BulletRollout``: PyBullet at a given step, for comparison) -> ``Outcome`` (final pose, miss) -> the
-search keeps the best. ``verify`` re-simulates the chosen push at the conventions' step afterwards; the
-search never sees it. Keys of the result: docs/plan.md.
+post-push velocities, ``push.py``) -> roll-outs -> ``Outcome`` (final pose, miss) -> the search keeps the
+best. The default search is screened: a fast ``LearnedRollout`` (the contact prior alone, or a predictor's
+networks without simulator) rolls out many candidates, corrected by what PyBullet found near them, and a
+``BulletRollout`` (PyBullet at 1/240 s on the mesh's hull) ranks the most promising; ``final_check`` rolls
+the best few out again at the conventions' step in the budget's last fifth and answers. ``verify``
+re-simulates the chosen push afterwards; the search never sees it. Why each part: docs/plan.md
+("Choosing the search"); keys of the result: docs/plan.md.
 """
 
 from __future__ import annotations
@@ -238,15 +241,19 @@ class LearnedRollout:
 
 class BulletRollout:
     """PyBullet at ``time_step`` as the planner's model: one world and one body reused for every candidate,
-    each simulated from the resting pose until at rest (the conventions' rest rule) or ``seconds``."""
+    each simulated from the resting pose until at rest (the conventions' rest rule) or ``seconds``. A
+    candidate has toppled when its tilt passed 45 degrees at any frame of ``rate_hz`` (the conventions'
+    rule, as a store's labels and ``verify_push`` apply it), not only at its last pose: a body that rolls
+    over and lands upright has toppled."""
 
     REST_CHECK_S = 1.0 / 60.0
 
     def __init__(self, spec: Any, orientation_xyzw: np.ndarray, time_step: float, seconds: float,
-                 physics: PhysicsConfig | None = None, record_hz: float | None = None):
+                 physics: PhysicsConfig | None = None, rate_hz: float = 15.0, record: bool = False):
         self.physics = replace(physics or PhysicsConfig(), time_step=float(time_step))
         self.spec, self.orientation, self.seconds = spec, np.asarray(orientation_xyzw, dtype=np.float64), seconds
-        self.record_hz = record_hz  # keep each candidate's trajectory at this rate (the final check's answer has one)
+        self.rate_hz = float(rate_hz)
+        self.record = record  # keep each candidate's trajectory at rate_hz (the final check's answer has one)
         self.world = PhysicsWorld(self.physics)
         self.body = self.world.add_body(spec)
         self.name = f"pybullet@1/{round(1.0 / time_step)}s"
@@ -259,20 +266,24 @@ class BulletRollout:
         chunk = max(1, int(round(self.REST_CHECK_S / phys.time_step)))
         total = int(math.ceil(self.seconds / phys.time_step))
         rest_needed = int(math.ceil(phys.rest_duration / phys.time_step))
-        record = int(round(1.0 / (self.record_hz * phys.time_step))) if self.record_hz else 0
-        if record:
-            chunk = math.gcd(chunk, record)  # the recorded steps fall on chunk boundaries
+        frame = max(1, int(round(1.0 / (self.rate_hz * phys.time_step))))
+        chunk = math.gcd(chunk, frame)  # the frames fall on chunk boundaries
+        principal = quat_conjugate(self.spec.principal_quat_xyzw)
         positions, quats = np.empty((len(lin_vel), 3)), np.empty((len(lin_vel), 4))
-        trajectories = [] if record else None
+        toppled = np.zeros(len(lin_vel), dtype=bool)
+        trajectories = [] if self.record else None
         for i, (v, w) in enumerate(zip(lin_vel, ang_vel)):
             place_at_rest(self.world, self.body, self.spec, self.orientation)
             pb.resetBaseVelocity(self.body, list(map(float, v)), list(map(float, w)), physicsClientId=cid)
             steps = rest = 0
             track: list[tuple] = []
             while True:
-                if record and steps % record == 0:
-                    track.append((*pb.getBasePositionAndOrientation(self.body, physicsClientId=cid),
-                                  *pb.getBaseVelocity(self.body, physicsClientId=cid)))
+                if steps % frame == 0:
+                    pos, orn = pb.getBasePositionAndOrientation(self.body, physicsClientId=cid)
+                    if not toppled[i]:  # R_mesh = R_base A^T
+                        toppled[i] = tilt_angle(self.orientation, quat_multiply(np.asarray(orn), principal)) > TOPPLE_ANGLE
+                    if self.record:
+                        track.append((pos, orn, *pb.getBaseVelocity(self.body, physicsClientId=cid)))
                 if steps >= total or rest >= rest_needed:
                     break
                 self.world.step(chunk)
@@ -282,12 +293,12 @@ class BulletRollout:
                 rest = rest + chunk if still else 0
             pos, orn = pb.getBasePositionAndOrientation(self.body, physicsClientId=cid)
             positions[i], quats[i] = pos, orn
-            if record:
+            toppled[i] |= tilt_angle(self.orientation, quat_multiply(np.asarray(orn), principal)) > TOPPLE_ANGLE
+            if self.record:
                 trajectories.append(self._trajectory(track, pos, orn))
         # PyBullet's base frame is the principal frame: back to the mesh frame, R_mesh = R_base A^T
-        quats = quat_multiply(quats, quat_conjugate(self.spec.principal_quat_xyzw))
-        toppled = tilt_angle(self.orientation, quats) > TOPPLE_ANGLE
-        return Outcome(positions, quats, np.asarray(toppled), trajectories)
+        quats = quat_multiply(quats, principal)
+        return Outcome(positions, quats, toppled, trajectories)
 
     def _trajectory(self, track: list[tuple], pos: Any, orn: Any) -> dict[str, Any]:
         """The recorded states (and the final pose, where the roll-out stopped between two records) as the
@@ -300,7 +311,7 @@ class BulletRollout:
         if np.allclose(p[-1], p[-2]) and np.allclose(q[-1], q[-2]):  # it stopped on a record
             p, q, v, w = p[:-1], q[:-1], v[:-1], w[:-1]
         over = np.maximum.accumulate(tilt_angle(self.orientation, q) > TOPPLE_ANGLE)
-        return {"rate_hz": float(self.record_hz), "time": np.arange(len(p)) / float(self.record_hz), "com_position": p,
+        return {"rate_hz": self.rate_hz, "time": np.arange(len(p)) / self.rate_hz, "com_position": p,
                 "orientation_xyzw": q, "linear_velocity": v, "angular_velocity": w,
                 "topple_probability": over.astype(np.float64), "checkpoint": self.name}
 
@@ -527,7 +538,7 @@ def plan_push(predictor: Any, mesh: Any, goal_xy: Any, goal_yaw: Any = None, upr
     friction = physics.lateral_friction_object * physics.lateral_friction_ground
     seconds = horizon_seconds(hi, friction, physics.gravity)
     rollout = (LearnedRollout(predictor, body, q0, seconds) if search == "model"
-               else BulletRollout(body.spec, q0, time_step, seconds, physics))
+               else BulletRollout(body.spec, q0, time_step, seconds, physics, predictor.rate_hz))
     fast = LearnedRollout(screen_predictor(predictor, screen, physics), body, q0, seconds) if search == "screened" else None
     check_step = physics.time_step if check else None
     warm_up = rollout.warm_up() + (fast.warm_up() if fast is not None else 0.0)
@@ -549,7 +560,7 @@ def plan_push(predictor: Any, mesh: Any, goal_xy: Any, goal_yaw: Any = None, upr
         if check_step:
             # until at rest, as the verification runs: a candidate still turning at the search's horizon is
             # judged where it stops
-            checker = BulletRollout(body.spec, q0, float(check_step), VERIFY_SECONDS, physics, record_hz=predictor.rate_hz)
+            checker = BulletRollout(body.spec, q0, float(check_step), VERIFY_SECONDS, physics, predictor.rate_hz, record=True)
             try:
                 found, check_seconds = final_check(best["pool"], checker, goal, start, q0, started + budget)
             finally:

@@ -13,6 +13,7 @@ from physdyn.cli import main
 from physdyn.config import PhysicsConfig
 from physdyn.errors import PredictionError
 from physdyn.predict.body import prepare_body
+from physdyn.geometry.rotations import tilt_angle
 from physdyn.predict.planner import turn_about_vertical, wrap_angle
 from physdyn.predict.predictor import load_predictor
 from physdyn.predict.push import PushResponse, free_body_velocities
@@ -198,3 +199,27 @@ def test_cli_writes_the_plan_and_its_viewer_page_and_summarises_in_one_line(tmp_
     before = out.read_text()
     assert main(["plan", str(mesh), "--goal", "0.1", "0", "--budget", "0.2", "--out", str(out)]) == 2
     assert out.read_text() == before and "already exists" in capsys.readouterr().err
+
+
+def test_pybullet_inside_the_planner_calls_a_topple_as_the_conventions_do(can):
+    """A can on its side rolls: its initial up direction passes 45 degrees although it rests as it started
+    (a round body). The planner's PyBullet roll-out must call that a topple, as the store's labels and the
+    verification do, not judge the last pose alone."""
+    from physdyn.predict.planner import BulletRollout
+
+    q0 = np.array([math.sin(math.pi / 4), 0, 0, math.cos(math.pi / 4)])
+    # its axis lies along world y: rolled along x it turns about a full turn and stops with its initial up
+    # direction 21 degrees from vertical; pushed along y it slides
+    v = np.array([[0.75, 0.0, 0.0], [0.0, 0.3, 0.0]])
+    w = np.array([[0.0, 0.75 / 0.04, 0.0], [0.0, 0.0, 0.0]])
+    rollout = BulletRollout(can.spec, q0, 1 / 960, 7.0, rate_hz=15.0)
+    try:
+        out = rollout(v, w)
+    finally:
+        rollout.close()
+    for i in range(2):
+        sim = simulate_from_state(can.spec, q0, v[i], w[i], 15.0, 106)
+        assert out.toppled[i] == bool(sim["topple_label"].any())
+        np.testing.assert_allclose(out.com_position[i], sim["com_position"][-1], atol=2e-3)
+    assert out.toppled[0] and not out.toppled[1]
+    assert np.degrees(tilt_angle(q0, out.orientation_xyzw[0])) < 45  # its last pose alone would say "upright"
