@@ -26,7 +26,19 @@ SHRINK = [
 
 
 def shrunk_overrides(store: str, out_dir: Path, *extra: str) -> list[str]:
-    return [f"data.store={store}", f"out_dir={out_dir}", *SHRINK, *extra]
+    """The shrink, less the predictor parameters a predictor named in ``extra`` does not take (``none`` has
+    no network to shrink)."""
+    import dataclasses
+
+    from physdyn.registry import PREDICTORS
+
+    shrink = list(SHRINK)
+    named = [e.split("=", 1)[1] for e in extra if e.startswith("model.predictor.name=")]
+    if named:
+        fields = {f.name for f in dataclasses.fields(PREDICTORS.get(named[-1]).Config)}
+        shrink = [o for o in shrink if not o.startswith("model.predictor.params.")
+                  or o.split("=", 1)[0].rsplit(".", 1)[1] in fields]
+    return [f"data.store={store}", f"out_dir={out_dir}", *shrink, *extra]
 
 
 @pytest.fixture
