@@ -38,7 +38,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--scale", default="cpu", metavar="{tiny,cpu,paper}",
-                   help="tiny (tests, seconds per run), cpu (a few hours on 2 cores), paper (the paper's sizes, a GPU), "
+                   help="tiny (tests, seconds per run), cpu (about 5 hours: its trainings run one after another), paper (the paper's sizes, a GPU), "
                         "or a YAML file like configs/reproduce/cpu.yaml (default: %(default)s)")
     p.add_argument("--out", required=True, help="folder for every dataset, run and evaluation, e.g. runs/paper-cpu")
     p.add_argument("--only", metavar="A,B", help="comma-separated experiments to run (default: all)")
