@@ -193,6 +193,8 @@ CASES = [
     ("plan-goal-unreachable", ["plan", "{ws}/box.obj", "--goal", "5", "0", "--out", "{ws}/plan.json"], "beyond what a push"),
     ("plan-goal-yaw-nan", ["plan", "{ws}/box.obj", "--goal", "0.1", "0", "--goal-yaw", "nan"], "goal yaw must be finite"),
     ("plan-budget-zero", ["plan", "{ws}/box.obj", "--goal", "0.1", "0", "--budget", "0", "--out", "{ws}/plan.json"], "budget"),
+    ("plan-render-without-trajectory", ["plan", "{ws}/box.obj", "--goal", "0.1", "0", "--search", "pybullet", "--no-check",
+                                        "--render", "{ws}/plan.html"], "--render needs a trajectory"),
     ("plan-pybullet-step-zero", ["plan", "{ws}/box.obj", "--goal", "0.1", "0", "--pybullet-step", "0", "--out", "{ws}/plan.json"],
      "PyBullet step must be in"),
     ("plan-budget-negative", ["plan", "{ws}/box.obj", "--goal", "0.1", "0", "--budget", "-1"], "budget"),

@@ -50,7 +50,7 @@ def plan_summary(result: dict[str, Any]) -> str:
         line += f"; PyBullet check {miss(result['verified'])}"
     searched = f"{result['candidates']} candidates"
     if result.get("screened"):
-        searched = f"{result.get('screened')} screened by the {result.get('screen')}, {searched} by {result['model']}"
+        searched = f"{result.get('screened')} screened ({result.get('screen')}), {searched} by {result['model']}"
     else:
         searched += f" by {result['model']}"
     if result.get("checked"):
