@@ -740,16 +740,18 @@ def verdicts(set_name: str, rows: list[dict], hz: int = 120) -> list[str]:
                  ("ms for a new mesh", row["ms"]["one"], reference["ms"]["one"], "{:.1f}", False)]
         better = [(ours >= theirs) if higher else (ours <= theirs) for _, ours, theirs, _, higher in pairs]
         figures = ", ".join(f"{label} {fmt_.format(ours)} vs {fmt_.format(theirs)}" for label, ours, theirs, fmt_, _ in pairs)
+        worse = ", ".join(p[0] for p, b in zip(pairs[:3], better[:3]) if not b)
+        cost = "as cheap or cheaper" if better[3] else "dearer"
         if all(better):
             word = "as accurate or better, and as cheap or cheaper: on the frontier beside it"
+        elif all(better[:3]):
+            word = "as accurate or better, but dearer"
         elif not any(better):
             word = "less accurate on every figure and dearer: dominated"
         elif not any(better[:3]):
-            word = "cheaper, less accurate on every figure"
-        elif not better[3] and not all(better[:3]):
-            word = "dearer, and less accurate on " + ", ".join(p[0] for p, b in zip(pairs[:3], better[:3]) if not b)
+            word = "as cheap or cheaper, less accurate on every figure"
         else:
-            word = "less accurate on " + ", ".join(p[0] for p, b in zip(pairs[:3], better[:3]) if not b)
+            word = f"{cost}, less accurate on {worse}"
         lines.append(f"{row['name']} against PyBullet at 1/{hz} s on {set_name}'s new meshes: {figures}: {word}.")
     return lines
 

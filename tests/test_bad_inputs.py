@@ -195,6 +195,8 @@ CASES = [
     ("plan-budget-zero", ["plan", "{ws}/box.obj", "--goal", "0.1", "0", "--budget", "0", "--out", "{ws}/plan.json"], "budget"),
     ("plan-render-without-trajectory", ["plan", "{ws}/box.obj", "--goal", "0.1", "0", "--search", "pybullet", "--no-check",
                                         "--render", "{ws}/plan.html"], "--render needs a trajectory"),
+    ("plan-render-screened-no-check", ["plan", "{ws}/box.obj", "--goal", "0.1", "0", "--no-check", "--render", "{ws}/plan.html",
+                                       "--out", "{ws}/plan.json"], "--render needs a trajectory"),
     ("plan-pybullet-step-zero", ["plan", "{ws}/box.obj", "--goal", "0.1", "0", "--pybullet-step", "0", "--out", "{ws}/plan.json"],
      "PyBullet step must be in"),
     ("plan-budget-negative", ["plan", "{ws}/box.obj", "--goal", "0.1", "0", "--budget", "-1"], "budget"),

@@ -90,11 +90,11 @@ def run(args: argparse.Namespace) -> int:
     check_goal(args.goal, args.goal_yaw, args.upright, speed_max, PhysicsConfig())
     check_budget(args.budget)
     check_search(args.search, args.pybullet_step, args.screen)
-    if args.render and args.search == "pybullet" and args.no_check and not args.verify:
+    if args.render and args.search != "model" and args.no_check and not args.verify:
         from physdyn.errors import PredictionError
 
-        raise PredictionError("--render needs a trajectory: a plan searched by PyBullet alone keeps none without its "
-                              "final check; drop --no-check or pass --verify")
+        raise PredictionError("--render needs a trajectory: a plan ranked by PyBullet keeps none without its final "
+                              "check; drop --no-check or pass --verify")
     orientation = check_orientation(args.orientation)
     if args.out:
         check_plan_path(args.out, args.overwrite)

@@ -277,8 +277,10 @@ class BulletRollout:
             pb.resetBaseVelocity(self.body, list(map(float, v)), list(map(float, w)), physicsClientId=cid)
             steps = rest = 0
             track: list[tuple] = []
+            recorded_last = False  # whether the final pose is the last recorded frame
             while True:
-                if steps % frame == 0:
+                recorded_last = steps % frame == 0
+                if recorded_last:
                     pos, orn = pb.getBasePositionAndOrientation(self.body, physicsClientId=cid)
                     if not toppled[i]:  # R_mesh = R_base A^T
                         toppled[i] = tilt_angle(self.orientation, quat_multiply(np.asarray(orn), principal)) > TOPPLE_ANGLE
@@ -295,21 +297,21 @@ class BulletRollout:
             positions[i], quats[i] = pos, orn
             toppled[i] |= tilt_angle(self.orientation, quat_multiply(np.asarray(orn), principal)) > TOPPLE_ANGLE
             if self.record:
-                trajectories.append(self._trajectory(track, pos, orn))
+                trajectories.append(self._trajectory(track if not recorded_last else track[:-1], pos, orn))
         # PyBullet's base frame is the principal frame: back to the mesh frame, R_mesh = R_base A^T
         quats = quat_multiply(quats, principal)
         return Outcome(positions, quats, toppled, trajectories)
 
     def _trajectory(self, track: list[tuple], pos: Any, orn: Any) -> dict[str, Any]:
-        """The recorded states (and the final pose, where the roll-out stopped between two records) as the
-        trajectory keys of a prediction, in the mesh frame; topple "probability" 0 or 1 by the 45 degree rule."""
+        """The recorded frames before the final state, then the final state (where the roll-out stopped, on a
+        frame or between two), as the trajectory keys of a prediction, in the mesh frame; topple "probability"
+        0 or 1 by the 45 degree rule, from the first frame past it on."""
         p = np.array([t[0] for t in track] + [pos], dtype=np.float64)
         q = quat_multiply(np.array([t[1] for t in track] + [orn], dtype=np.float64),
                           quat_conjugate(self.spec.principal_quat_xyzw))
-        v = np.array([t[2] for t in track] + [track[-1][2]], dtype=np.float64)
-        w = np.array([t[3] for t in track] + [track[-1][3]], dtype=np.float64)
-        if np.allclose(p[-1], p[-2]) and np.allclose(q[-1], q[-2]):  # it stopped on a record
-            p, q, v, w = p[:-1], q[:-1], v[:-1], w[:-1]
+        last_v, last_w = pb.getBaseVelocity(self.body, physicsClientId=self.world.client)
+        v = np.array([t[2] for t in track] + [last_v], dtype=np.float64)
+        w = np.array([t[3] for t in track] + [last_w], dtype=np.float64)
         over = np.maximum.accumulate(tilt_angle(self.orientation, q) > TOPPLE_ANGLE)
         return {"rate_hz": self.rate_hz, "time": np.arange(len(p)) / self.rate_hz, "com_position": p,
                 "orientation_xyzw": q, "linear_velocity": v, "angular_velocity": w,
@@ -459,8 +461,8 @@ def final_check(pool: list[dict[str, Any]], check: Callable[[np.ndarray, np.ndar
                 start: np.ndarray, orientation0: np.ndarray, deadline: float) -> tuple[dict[str, Any] | None, int]:
     """The search's best candidates (``pool``, best first) rolled out again by ``check`` (PyBullet at a finer
     step), one at a time while the measured cost of one says it ends before ``deadline``; the first always
-    runs. Returns the best by ``check``'s outcome (its misses and pose replace the search's; no trajectory)
-    and the seconds each check took."""
+    runs. Returns the best by ``check``'s outcome (its misses, pose and, when ``check`` records one, its
+    trajectory replace the search's) and the seconds each check took."""
     best, seconds = None, []
     for cand in pool:
         if seconds and time.perf_counter() + max(seconds) > deadline:

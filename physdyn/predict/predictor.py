@@ -268,7 +268,9 @@ class Predictor:
             return self
         if getattr(self, "_fast", None) is not None:
             return self._fast
-        fast = copy.copy(model)  # a shallow copy: the same modules and weights, its own settings
+        # A shallow copy: the same modules and weights, its own settings. Only plain attributes are replaced on
+        # it; its saved hyper-parameters still describe the original, so it is for roll-outs, never for saving.
+        fast = copy.copy(model)
         fast.config = dataclasses.replace(model.config, model=dataclasses.replace(model.config.model, sim_seconds=0.0))
         if simulating_classifier:
             fast.topple_classifier = None
