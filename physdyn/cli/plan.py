@@ -75,18 +75,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from physdyn.cli.predict import print_mesh_notes
-    from physdyn.config import ImpulseConfig, PhysicsConfig
+    from physdyn.config import PhysicsConfig
     from physdyn.predict.body import prepare_body
     from physdyn.predict.plan_files import check_plan_path, plan_summary, write_plan, write_plan_viewer
-    from physdyn.predict.planner import check_budget, check_bounds, check_goal, check_search
+    from physdyn.predict.planner import check_budget, check_goal, check_search, resolve_bounds
     from physdyn.predict.predictor import check_orientation, load_predictor
 
     # Every check that needs no model comes first, so a bad goal fails fast and writes nothing.
-    defaults = ImpulseConfig()
-    _, speed_max, _, _ = check_bounds(defaults.speed_min if args.speed_min is None else args.speed_min,
-                                      defaults.speed_max if args.speed_max is None else args.speed_max,
-                                      defaults.height_fraction if args.height_fraction is None else args.height_fraction,
-                                      defaults.lateral_fraction if args.lateral_fraction is None else args.lateral_fraction)
+    _, speed_max, _, _ = resolve_bounds(args.speed_min, args.speed_max, args.height_fraction, args.lateral_fraction)
     check_goal(args.goal, args.goal_yaw, args.upright, speed_max, PhysicsConfig())
     check_budget(args.budget)
     check_search(args.search, args.pybullet_step, args.screen)

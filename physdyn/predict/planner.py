@@ -330,9 +330,15 @@ def misses(goal: Goal, start: np.ndarray, orientation0: np.ndarray, outcome_posi
     and the turn's difference from the goal's (B,) rad, absolute (zero without a goal yaw)."""
     displacement = outcome_position[:, :2] - start[:2]
     turn = turn_about_vertical(orientation0, outcome_orientation)
+    return (displacement, turn, *goal_misses(goal, displacement, turn))
+
+
+def goal_misses(goal: Goal, displacement: np.ndarray, turn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Displacements (B, 2) and turns (B,) -> the distance to the goal (B,) m and the turn's absolute
+    difference from the goal's (B,) rad (zero without a goal yaw)."""
     distance = np.linalg.norm(displacement - goal.xy, axis=1)
     turn_miss = np.zeros(len(turn)) if goal.yaw is None else np.abs(wrap_angle(turn - goal.yaw))
-    return displacement, turn, distance, turn_miss
+    return distance, turn_miss
 
 
 def costs(goal: Goal, distance: np.ndarray, turn_miss: np.ndarray, toppled: np.ndarray) -> np.ndarray:
@@ -381,18 +387,15 @@ def cross_entropy_search(space: PushSpace, rollout: Callable[[np.ndarray, np.nda
         pushes = space.pushes(u)
         if screen is not None:  # the fast model keeps the `size` most promising for the accurate one
             fast = screen(pushes["lin_vel"], pushes["ang_vel"])
-            fast_xy, fast_turn = misses(goal, start, orientation0, fast.com_position, fast.orientation_xyzw)[:2]
+            raw_xy, raw_turn = misses(goal, start, orientation0, fast.com_position, fast.orientation_xyzw)[:2]
+            fast_xy, fast_turn = raw_xy, raw_turn
             if seen_u and correct:
                 # the accurate model's differences from the fast one at the nearest candidates it rolled out
                 d_xy, d_turn = _nearest_corrections(u, np.concatenate(seen_u), np.concatenate(seen_dxy), np.concatenate(seen_dturn))
-                fast_xy, fast_turn = fast_xy + d_xy, fast_turn + d_turn
-            fast_distance = np.linalg.norm(fast_xy - goal.xy, axis=1)
-            fast_turn_miss = np.zeros(drawn) if goal.yaw is None else np.abs(wrap_angle(fast_turn - goal.yaw))
-            fast_cost = costs(goal, fast_distance, fast_turn_miss, fast.toppled)
-            keep = np.argsort(fast_cost, kind="stable")[:size]
-            u = u[keep]
+                fast_xy, fast_turn = raw_xy + d_xy, raw_turn + d_turn
+            keep = np.argsort(costs(goal, *goal_misses(goal, fast_xy, fast_turn), fast.toppled), kind="stable")[:size]
+            u, raw_xy, raw_turn = u[keep], raw_xy[keep], raw_turn[keep]
             pushes = {k: v[keep] for k, v in pushes.items()}
-            raw_xy, raw_turn = misses(goal, start, orientation0, fast.com_position[keep], fast.orientation_xyzw[keep])[:2]
             screened += drawn
         outcome = rollout(pushes["lin_vel"], pushes["ang_vel"])
         displacement, turn, distance, turn_miss = misses(goal, start, orientation0, outcome.com_position, outcome.orientation_xyzw)
@@ -499,18 +502,24 @@ def check_search(search: Any, pybullet_step: Any, screen: Any) -> float:
     return time_step
 
 
-def screen_predictor(predictor: Any, screen: Any, physics: PhysicsConfig) -> Any:
-    """The fast model of a screened search: the contact prior (one per predictor, kept), the predictor's
-    networks without simulator, or a ``Predictor`` given."""
+def screen_predictor(predictor: Any, screen: Any) -> Any:
+    """The fast model of a screened search: the contact prior, the predictor's networks without simulator (each
+    made once per predictor), or a ``Predictor`` given."""
     if screen == "prior":
-        if getattr(predictor, "_contact_prior", None) is None:
-            from physdyn.predict.predictor import contact_prior_predictor
-
-            predictor._contact_prior = contact_prior_predictor(physics, predictor.rate_hz)
-        return predictor._contact_prior
+        return predictor.contact_prior()
     if screen == "model":
         return predictor.without_simulator()
     return screen
+
+
+def resolve_bounds(speed_min: Any = None, speed_max: Any = None, height_fraction: Any = None,
+                   lateral_fraction: Any = None) -> tuple[float, float, float, float]:
+    """The push bounds, each None taken from the training pushes' (``ImpulseConfig``), checked by ``check_bounds``."""
+    defaults = ImpulseConfig()
+    return check_bounds(defaults.speed_min if speed_min is None else speed_min,
+                        defaults.speed_max if speed_max is None else speed_max,
+                        defaults.height_fraction if height_fraction is None else height_fraction,
+                        defaults.lateral_fraction if lateral_fraction is None else lateral_fraction)
 
 
 def plan_push(predictor: Any, mesh: Any, goal_xy: Any, goal_yaw: Any = None, upright: bool = False, budget_s: float = 1.0,
@@ -526,11 +535,7 @@ def plan_push(predictor: Any, mesh: Any, goal_xy: Any, goal_yaw: Any = None, upr
     of the budget, the best by that check answering."""
     from physdyn.predict.predictor import check_orientation
 
-    defaults = ImpulseConfig()
-    lo, hi, height, lateral = check_bounds(defaults.speed_min if speed_min is None else speed_min,
-                                           defaults.speed_max if speed_max is None else speed_max,
-                                           defaults.height_fraction if height_fraction is None else height_fraction,
-                                           defaults.lateral_fraction if lateral_fraction is None else lateral_fraction)
+    lo, hi, height, lateral = resolve_bounds(speed_min, speed_max, height_fraction, lateral_fraction)
     physics = predictor.physics or PhysicsConfig()
     goal = check_goal(goal_xy, goal_yaw, upright, hi, physics)
     budget = check_budget(budget_s)
@@ -541,7 +546,7 @@ def plan_push(predictor: Any, mesh: Any, goal_xy: Any, goal_yaw: Any = None, upr
     seconds = horizon_seconds(hi, friction, physics.gravity)
     rollout = (LearnedRollout(predictor, body, q0, seconds) if search == "model"
                else BulletRollout(body.spec, q0, time_step, seconds, physics, predictor.rate_hz))
-    fast = LearnedRollout(screen_predictor(predictor, screen, physics), body, q0, seconds) if search == "screened" else None
+    fast = LearnedRollout(screen_predictor(predictor, screen), body, q0, seconds) if search == "screened" else None
     check_step = physics.time_step if check else None
     warm_up = rollout.warm_up() + (fast.warm_up() if fast is not None else 0.0)
     # the budget's clock: from here, the mesh's preparation (cached per predictor) and a cold process's

@@ -136,6 +136,8 @@ class Predictor:
         # preparation_key -> PreparedBody, least recently used first: a new mesh costs milliseconds to
         # prepare, a mesh seen before only a digest of its arrays.
         self._prepared: OrderedDict[tuple, PreparedBody] = OrderedDict()
+        self._fast: Predictor | None = None  # without_simulator(), made once
+        self._contact_prior: Predictor | None = None  # contact_prior(), made once
 
     @property
     def rate_hz(self) -> float:
@@ -266,7 +268,7 @@ class Predictor:
         simulating_classifier = classifier is not None and bool(getattr(classifier, "physics", False))
         if not sim_steps(model) and not simulating_classifier:
             return self
-        if getattr(self, "_fast", None) is not None:
+        if self._fast is not None:
             return self._fast
         # A shallow copy: the same modules and weights, its own settings. Only plain attributes are replaced on
         # it; its saved hyper-parameters still describe the original, so it is for roll-outs, never for saving.
@@ -274,9 +276,23 @@ class Predictor:
         fast.config = dataclasses.replace(model.config, model=dataclasses.replace(model.config.model, sim_seconds=0.0))
         if simulating_classifier:
             fast.topple_classifier = None
+        self._fast = self._sibling(fast, f"{self.name} without simulator")
+        return self._fast
+
+    def contact_prior(self) -> "Predictor":
+        """The contact prior alone (``contact_prior_predictor``) at this predictor's rate and physics, sharing its
+        prepared meshes; made once. The planner screens candidates with it (docs/plan.md)."""
+        if self._contact_prior is None:
+            prior = contact_prior_predictor(self.physics, self.rate_hz)
+            self._contact_prior = self._sibling(prior.model, prior.name)
+        return self._contact_prior
+
+    def _sibling(self, model: Any, name: str) -> "Predictor":
+        """Another predictor of ``model`` with this one's physics and prepared meshes. Not through ``__init__``:
+        a model sharing this one's modules stays on their device."""
         out = Predictor.__new__(Predictor)
-        out.model, out.name, out.physics, out._prepared = fast, f"{self.name} without simulator", self.physics, self._prepared
-        self._fast = out
+        out.model, out.name, out.physics, out._prepared = model, name, self.physics, self._prepared
+        out._fast = out._contact_prior = None
         return out
 
     def plan(self, mesh: Any, goal_xy: Any, goal_yaw: Any = None, upright: bool = False, budget_s: float = 1.0,
