@@ -188,6 +188,10 @@ def _train(cfg: ExperimentConfig, out_dir: Path, model: DynamicsModel, datamodul
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*exists and is not empty.*")
         warnings.filterwarnings("ignore", message=".*smaller than the logging interval.*")
+        # A resumed run reaches an epoch's end before its first validation; best.ckpt's callback then finds no
+        # val/loss, keeps the best it restored and says "did you call log('val/loss')?" (Lightning raises
+        # instead once a validation has run, so a real missing metric is still caught).
+        warnings.filterwarnings("ignore", message=r".*monitor='val/loss'\)` could not find the monitored key.*")
         ignore_lightning_noise()
         trainer.fit(model, datamodule=datamodule, ckpt_path=str(ckpt_path) if ckpt_path else None)
     scalar = lambda d: {k: float(v) for k, v in d.items() if torch.is_tensor(v) and v.numel() == 1}  # noqa: E731

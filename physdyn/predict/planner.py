@@ -210,11 +210,11 @@ class LearnedRollout:
         """A predictor's first roll-out in a process sets things up once (torch, the simulated start's world):
         1-2 s on a loaded core. One candidate of the first plan pays it before the budget's clock starts.
         Returns the seconds it took (0 when this predictor was warm)."""
-        if getattr(self.predictor, "_warm", False):
+        if self.predictor.warmed_up:
             return 0.0
         t0 = time.perf_counter()
         self(np.array([[0.5, 0.0, 0.0]]), np.zeros((1, 3)))
-        self.predictor._warm = True
+        self.predictor.warmed_up = True
         return time.perf_counter() - t0
 
     def __call__(self, lin_vel: np.ndarray, ang_vel: np.ndarray) -> Outcome:

@@ -138,6 +138,8 @@ class Predictor:
         self._prepared: OrderedDict[tuple, PreparedBody] = OrderedDict()
         self._fast: Predictor | None = None  # without_simulator(), made once
         self._contact_prior: Predictor | None = None  # contact_prior(), made once
+        # Set by the planner once this predictor has rolled out in this process (its one-off set-up paid).
+        self.warmed_up = False
 
     @property
     def rate_hz(self) -> float:
@@ -293,6 +295,7 @@ class Predictor:
         out = Predictor.__new__(Predictor)
         out.model, out.name, out.physics, out._prepared = model, name, self.physics, self._prepared
         out._fast = out._contact_prior = None
+        out.warmed_up = False
         return out
 
     def plan(self, mesh: Any, goal_xy: Any, goal_yaw: Any = None, upright: bool = False, budget_s: float = 1.0,

@@ -138,7 +138,7 @@ def test_step_by_step_rollout_api_matches_the_window(quickstart_config, tiny_sto
     assert window.to_numpy()["topple_probability"].shape == (1, 10)
 
 
-def test_resume_continues_and_finished_runs_are_protected(quickstart_config):
+def test_resume_continues_and_finished_runs_are_protected(quickstart_config, recwarn):
     first = fit(quickstart_config("trainer.max_steps=2"))
     with pytest.raises(PhysdynError, match="finished run.*--overwrite"):
         fit(quickstart_config("trainer.max_steps=2"))
@@ -163,6 +163,9 @@ def test_resume_continues_and_finished_runs_are_protected(quickstart_config):
     assert max(steps_after) > max(steps_before)
     again = fit(quickstart_config("trainer.max_steps=1"), overwrite=True)
     assert json.loads((again.out_dir / "finished.json").read_text())["global_step"] == 1
+    # A run resumed, or stopped, at an epoch's end before any validation keeps its best.ckpt; Lightning's
+    # "did you call log('val/loss')?" (warned once per process) would only mislead the user.
+    assert not [w for w in recwarn if "monitored key" in str(w.message)]
 
 
 @pytest.mark.slow  # seconds-scale; the default run stays near 3 minutes, CI runs it (-m slow)
