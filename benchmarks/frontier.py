@@ -782,7 +782,8 @@ def parse_args() -> argparse.Namespace:
     ap.add_argument("--work", default="runs/frontier", help="meshes, the wheel, truth stores (reused when present)")
     ap.add_argument("--out", default=None, help="markdown report; the figures go beside it as .json "
                                                 "(default reports/frontier/frontier.md)")
-    ap.add_argument("--plot", default=None, help="default docs/figures/frontier.png")
+    ap.add_argument("--plot", default=None, help="the plot (default: --out with .png; docs/performance.md's "
+                                                 "run passed --plot docs/figures/frontier.png)")
     ap.add_argument("--quick", action="store_true",
                     help="a smoke check: " + ", ".join(f"--{k.replace('_', '-')} {v}" for k, v in QUICK.items())
                          + "; report and plot under WORK/quick/ unless given")
@@ -792,7 +793,7 @@ def parse_args() -> argparse.Namespace:
             setattr(args, key, value)
     quick_dir = Path(args.work) / "quick"
     args.out = Path(args.out or (quick_dir / "frontier.md" if args.quick else "reports/frontier/frontier.md"))
-    args.plot = Path(args.plot or (quick_dir / "frontier.png" if args.quick else "docs/figures/frontier.png"))
+    args.plot = Path(args.plot or args.out.with_suffix(".png"))
     args.predictor = args.predictor or list(DEFAULT_PREDICTORS)
     return args
 

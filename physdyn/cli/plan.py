@@ -13,7 +13,7 @@ EXAMPLES = """\
 examples:
   physdyn plan my_box.obj --goal 0.3 0.1 --out plan.json
   physdyn plan my_box.obj --goal 0.3 0.1 --goal-yaw 30 --upright --budget 2 --verify --render plan.html
-  physdyn plan part.stl --scale 0.001 --goal 0.2 0 --checkpoint runs/quickstart/best.ckpt --out plan.json
+  physdyn plan part.stl --scale 0.001 --goal 0.2 0 --search model --checkpoint runs/quickstart/best.ckpt --out plan.json
 
 The goal is the displacement of the centre of mass on the plane (m, world frame, z up) from where the
 object rests, and optionally its turn about the vertical between the rest poses (deg, counter-clockwise
@@ -49,7 +49,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument("--verify", action="store_true",
                    help="re-simulate the planned push in PyBullet at the conventions' step (key 'verified'; a check, not used by the search)")
-    p.add_argument("--render", metavar="FILE", help="write the viewer page (.html): the plan beside its check")
+    p.add_argument("--render", metavar="FILE", help="write the viewer page (.html): the answering trajectory (by default the final check's PyBullet "
+                        "run), with --verify's run as the ghost")
     p.add_argument("--seed", type=int, default=0, help="seed of the search (default: %(default)s)")
     p.add_argument("--speed-min", type=float, default=None, metavar="M_PER_S",
                    help="slowest push, speed change of the free body (default: the training pushes' 0.5)")

@@ -39,7 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cloud-sim", action="store_true",
                    help="also compare with PyBullet run on the convex hull of each shape's point cloud, with the "
                         "body's mass properties (the cloud_sim baseline: 'just running the simulator' on what the "
-                        "model sees; about 10 ms of CPU per push, plus its one-step errors)")
+                        "model sees; about a minute for 1,200 pushes, plus its one-step errors)")
     p.add_argument("--overwrite", action="store_true", help="replace a report already in --out")
     p.set_defaults(func=run, parser=p)
 

@@ -17,7 +17,8 @@ from typing import Any, Mapping
 import numpy as np
 
 from physdyn.data.windows import DELTA_KEYS, relative_rotation, world_oriented_points
-from physdyn.geometry.rotations import quat_multiply, rotvec_to_quat, world_delta_rotvec
+from physdyn.config import PhysicsConfig
+from physdyn.geometry.rotations import quat_multiply, quat_to_matrix, rotvec_to_quat, tilt_angle, world_delta_rotvec
 
 STATE_KEYS = ("com_position", "orientation_xyzw", "linear_velocity", "angular_velocity")
 
@@ -217,8 +218,7 @@ def rollout(
     if simulated is not None and probability is not None:
         # a push the simulated start has already toppled (the 45 degree rule) has toppled: the returned
         # poses show it, so the probabilities say it from that step on
-        from physdyn.geometry.rotations import tilt_angle
-        from physdyn.sim.trajectory import TOPPLE_ANGLE
+        from physdyn.sim.trajectory import TOPPLE_ANGLE  # PyBullet (sim/): only for models that simulate
 
         tilted = tilt_angle(q0[:, None], simulated["orientation_xyzw"]) > TOPPLE_ANGLE  # (B, K + 1)
         over = np.maximum.accumulate(tilted, axis=1)
@@ -243,8 +243,6 @@ def simulated_start(model: Any, points_body: np.ndarray, q0: np.ndarray, p0: np.
     ``orientation_xyzw`` (B, steps + 1, 4) and the changes ``delta_*`` (B, steps, 3) between the simulated
     states (``delta_rotation`` world axis-angle).
     points_body (B, N, 3) body frame; body_inertia optional (B, 3, 3) I / m in world axes at step 0."""
-    from physdyn.config import PhysicsConfig
-    from physdyn.geometry.rotations import quat_to_matrix
     from physdyn.sim.cloud_body import shared_simulator  # PyBullet: only for models that simulate
 
     q0 = _numpy(q0).reshape(-1, 4)

@@ -26,6 +26,7 @@ from omegaconf import OmegaConf
 from physdyn.config import ExperimentConfig, config_from_dict, parse_override, to_dict
 from physdyn.errors import ConfigError, PhysdynError
 from physdyn.models.checkpoint_file import read_checkpoint, write_torch_file
+from physdyn.models.dynamics_module import DynamicsModel
 from physdyn.models.training import validate_experiment_config
 
 # What DynamicsModel.load_from_checkpoint needs; the optimiser, loops and callbacks are only for resuming.
@@ -59,8 +60,6 @@ def with_linear_channels(slim: dict, linear: dict, name: str) -> dict:
     """A slim checkpoint whose velocity and position changes come from the checkpoint ``linear`` (its dict;
     ``name`` for errors): its weights under ``linear_channels.`` and its hyper-parameters beside. Checked by
     building the combined model. Raises ``ConfigError``."""
-    from physdyn.models.dynamics_module import DynamicsModel
-
     if linear.get("linear_channels"):
         raise ConfigError(f"--linear-from {name} combines two networks itself; pass a checkpoint of `physdyn fit`")
     state = {k: v for k, v in slim["state_dict"].items() if not k.startswith("linear_channels.")}

@@ -9,8 +9,10 @@ from typing import Any
 
 import numpy as np
 
+from physdyn.errors import PredictionError
 from physdyn.files import atomic_output, jsonable
 from physdyn.predict.prediction_files import check_output_path
+from physdyn.viz.viewer import Trajectory, ViewerScene, check_viewer_path, write_viewer
 
 PLAN_EXTENSIONS = (".json",)  # a plan nests its trajectories; npz and CSV cannot
 
@@ -61,15 +63,11 @@ def plan_summary(result: dict[str, Any]) -> str:
 def write_plan_viewer(result: dict[str, Any], mesh: Any, path: str | Path, overwrite: bool = False) -> Path:
     """The viewer page (docs/viewer.md): the answering model's roll-out of the planned push, beside PyBullet's check
     (with verify) as the ghost; the goal and the misses in the scene's notes. ``mesh``: the prepared body."""
-    from physdyn.viz.viewer import Trajectory, ViewerScene, check_viewer_path, write_viewer
-
     check_viewer_path(path, overwrite)
     predicted, verified = result["predicted"], result.get("verified")
     if "com_position" not in predicted:  # a plan searched with PyBullet as its model keeps no trajectory
         predicted = verified
     if predicted is None or "com_position" not in predicted:
-        from physdyn.errors import PredictionError
-
         raise PredictionError("this plan holds no trajectory to draw; plan with its final check (the default) or pass --verify")
     p, q = np.asarray(predicted["com_position"]), np.asarray(predicted["orientation_xyzw"])
     reference = None

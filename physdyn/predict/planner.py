@@ -20,6 +20,7 @@ from dataclasses import dataclass, replace
 from typing import Any, Callable
 
 import numpy as np
+import torch
 
 from physdyn.config import ImpulseConfig, PhysicsConfig
 from physdyn.errors import PredictionError, PredictionWarning
@@ -218,8 +219,6 @@ class LearnedRollout:
         return time.perf_counter() - t0
 
     def __call__(self, lin_vel: np.ndarray, ang_vel: np.ndarray) -> Outcome:
-        import torch
-
         # One thread: a round of a few dozen candidates is too small to split, and on a shared 2-core machine
         # two threads made a round of 16 four times slower (1.0 s against 0.22 s, measured).
         threads = torch.get_num_threads()
@@ -533,7 +532,7 @@ def plan_push(predictor: Any, mesh: Any, goal_xy: Any, goal_yaw: Any = None, upr
     (``contact_prior_predictor``), "model" (``Predictor.without_simulator``) or a ``Predictor``. ``check``:
     the ``CHECK_POOL`` best candidates rolled out again at the conventions' step in the last ``CHECK_SHARE``
     of the budget, the best by that check answering."""
-    from physdyn.predict.predictor import check_orientation
+    from physdyn.predict.predictor import check_orientation  # the predictor imports this module to plan
 
     lo, hi, height, lateral = resolve_bounds(speed_min, speed_max, height_fraction, lateral_fraction)
     physics = predictor.physics or PhysicsConfig()

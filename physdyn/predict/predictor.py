@@ -24,12 +24,16 @@ from typing import Any, Sequence
 import numpy as np
 import torch
 
+from physdyn.config import PRESETS, PhysicsConfig
+from physdyn.data.normalization import Normalization
 from physdyn.errors import PhysdynError, PredictionError, PredictionWarning
 from physdyn.eval.baselines import load_checkpoint
 from physdyn.eval.metrics import TOPPLE_THRESHOLD
 from physdyn.eval.rollout import rollout, sim_steps
 from physdyn.geometry.mass import vertical_inertia, world_inertia_per_mass
 from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_rotvec
+from physdyn.models.dynamics_module import DynamicsModel
+from physdyn.models.training import load_experiment_config
 from physdyn.predict.body import PreparedBody, initial_pose, preparation_key, prepare_body
 from physdyn.predict.simulator import SIMULATOR_NAME, simulate_from_state
 from physdyn.sim.cloud_body import forget_clouds
@@ -397,11 +401,6 @@ def contact_prior_predictor(physics: Any = None, rate_hz: float = 15.0, num_poin
     learned, never topples): Coulomb friction integrated over the footprint of the mesh's ``hull_surface``
     cloud with the body's own spin inertia, at the friction of ``physics`` (default: the conventions'). About
     0.1 ms a trajectory in a batch of one mesh's pushes; the planner screens candidates with it."""
-    from physdyn.config import PRESETS, PhysicsConfig
-    from physdyn.data.normalization import Normalization
-    from physdyn.models.dynamics_module import DynamicsModel
-    from physdyn.models.training import load_experiment_config
-
     physics = physics or PhysicsConfig()
     cfg = load_experiment_config(PRESETS / "experiment" / "contact_prior.yaml", [])
     info = {"rate_hz": float(rate_hz), "num_points": int(num_points), "points_method": "hull_surface",
