@@ -191,4 +191,7 @@ def test_realworld_preset_trains_and_tests_with_warm_start(store, tmp_path):
     proc = run_cli("test", "--checkpoint", str(result.best_checkpoint), "--data", store, "--warm-start", "1",
                    "--out", str(tmp_path / "report"), check=True)
     assert "realworld on 2 non-toppling test sequences" in proc.stdout
+    # trials imported without --friction: the sliding baseline is skipped and the verdict says why
+    assert "no Coulomb-sliding baseline: the store records no friction coefficient" in proc.stdout
+    assert "--friction MU" in proc.stdout
     assert (tmp_path / "report" / "metrics.json").is_file()
