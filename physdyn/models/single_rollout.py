@@ -6,8 +6,8 @@ made a step cost ~0.6 ms, a 3 s prediction ~30 ms, about what simulating the obj
 step is written out on numpy (the LSTM cells' matrix products, in float32 like the module) and on Python
 numbers (velocities, orientation, the contact prior), a few tens of microseconds per step.
 
-It covers the components the shipped models use, the ``lstm`` predictor and the ``topple`` / ``no_topple``
-heads, with any encoder (the shape is encoded once, in torch) and any prior, one network or two (a model
+It covers the components the shipped models use, the ``lstm`` predictor (and ``none``: the contact prior
+alone, ``contact_prior_predictor()``) and the ``topple`` / ``no_topple`` heads, with any encoder (the shape is encoded once, in torch) and any prior, one network or two (a model
 with ``linear_channels``: each network keeps its own state, the prior is shared); ``SingleRollout.supports``
 says whether a model qualifies, and ``DynamicsModel.rollout_changes`` falls back to the torch loop when it
 does not. Its numbers equal the torch loop's to float32 rounding (``tests/models/test_single_rollout.py``).
@@ -24,6 +24,7 @@ from scipy.special import expit
 
 from physdyn.models.heads.topple import NoToppleHead, ToppleHead
 from physdyn.models.predictors.lstm import LSTMPredictor
+from physdyn.models.predictors.none import NoPredictor
 from physdyn.models.priors import RESIDUAL_MASKS, _contact_changes_one, prior_changes
 
 
@@ -56,20 +57,20 @@ class _Network:
     """One network's weights as numpy arrays, and its part of a step: LSTM, head, prior, rest gate."""
 
     def __init__(self, model: Any):
-        lstm = model.predictor.lstm
-        L = model.predictor.config.num_layers
         f = lambda t: t.detach().cpu().numpy().astype(np.float32)  # noqa: E731
         self.varying = 6 + (6 if model.uses_orientation else 0)  # inputs that change per step; then the shape
         # Per layer one matrix for [input, h] and one bias (b_ih + b_hh): one product and one sum per step.
+        # The `none` predictor has no layer: its features are empty and the head outputs its bias.
         self.layers = []
-        for layer in range(L):
+        lstm = getattr(model.predictor, "lstm", None)
+        for layer in range(0 if lstm is None else model.predictor.config.num_layers):
             w_ih, w_hh = f(getattr(lstm, f"weight_ih_l{layer}")), f(getattr(lstm, f"weight_hh_l{layer}"))
             bias = f(getattr(lstm, f"bias_ih_l{layer}")) + f(getattr(lstm, f"bias_hh_l{layer}"))
             self.layers.append((np.concatenate([w_ih.T, w_hh.T]), bias))
         self.head_weight = f(model.head.linear.weight).T.copy()
         self.head_bias = f(model.head.linear.bias)
         self.residual_mask = f(model.residual_mask)  # model.residual_channels
-        self.hidden = int(model.predictor.config.hidden)
+        self.hidden = 0 if lstm is None else int(model.predictor.config.hidden)
         self.velocity_shift = f(model.velocity_shift)
         self.velocity_scale = f(model.velocity_scale)
         self.change_scale32, self.change_shift32 = f(model.change_scale), f(model.change_shift)
@@ -86,10 +87,11 @@ class _Network:
     def start(self, code: np.ndarray) -> None:
         """A roll-out of the shape ``code`` (this network's part of the shape code) begins."""
         shape, self.geometry = code[: self.encoder_width], code[self.encoder_width:].tolist()
-        # The shape's part of the first layer's input is the same at every step: multiply it once.
-        weight0, bias0 = self.layers[0]
-        n, m = self.varying, self.varying + len(shape)
-        self.run_layers = [(np.concatenate([weight0[:n], weight0[m:]]), shape @ weight0[n:m] + bias0)] + self.layers[1:]
+        self.run_layers = []
+        if self.layers:  # the shape's part of the first layer's input is the same at every step: multiply it once
+            weight0, bias0 = self.layers[0]
+            n, m = self.varying, self.varying + len(shape)
+            self.run_layers = [(np.concatenate([weight0[:n], weight0[m:]]), shape @ weight0[n:m] + bias0)] + self.layers[1:]
         self.h = [np.zeros(self.hidden, np.float32) for _ in self.layers]
         self.c = [np.zeros(self.hidden, np.float32) for _ in self.layers]
         self.queued: list[np.ndarray] = []
@@ -98,6 +100,8 @@ class _Network:
         return (self.prior, self.uses_shape_prior, tuple(self.geometry), self.prior_args)
 
     def _lstm(self, x: np.ndarray) -> np.ndarray:
+        if not self.run_layers:  # no network: empty features
+            return np.zeros(0, np.float32)
         H, h, c = self.hidden, self.h, self.c
         for layer, (weight, bias) in enumerate(self.run_layers):
             gates = np.concatenate([x, h[layer]]) @ weight + bias
@@ -155,9 +159,10 @@ class SingleRollout:
 
     @staticmethod
     def supports(model: Any) -> bool:
-        """Whether this roll-out reproduces ``model``'s: LSTM predictors, linear heads, on the CPU."""
+        """Whether this roll-out reproduces ``model``'s: LSTM predictors (or none: the prior alone), linear
+        heads, on the CPU."""
         parts = [model] + ([] if model.linear_channels is None else [model.linear_channels])
-        return all(type(m.predictor) is LSTMPredictor and type(m.head) in (ToppleHead, NoToppleHead)
+        return all(type(m.predictor) in (LSTMPredictor, NoPredictor) and type(m.head) in (ToppleHead, NoToppleHead)
                    and m.device.type == "cpu" and (m.uses_orientation or not m.uses_shape_prior) for m in parts)
 
     @classmethod
