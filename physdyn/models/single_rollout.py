@@ -7,8 +7,9 @@ step is written out on numpy (the LSTM cells' matrix products, in float32 like t
 numbers (velocities, orientation, the contact prior), a few tens of microseconds per step.
 
 It covers the components the shipped models use, the ``lstm`` predictor (and ``none``: the contact prior
-alone, ``contact_prior_predictor()``) and the ``topple`` / ``no_topple`` heads, with any encoder (the shape is encoded once, in torch) and any prior, one network or two (a model
-with ``linear_channels``: each network keeps its own state, the prior is shared); ``SingleRollout.supports``
+alone, ``contact_prior_predictor()``) and the ``topple`` / ``no_topple`` heads, with any encoder (the shape
+is encoded once, in torch) and any prior, one network or two (a model with ``linear_channels``: each
+network keeps its own state, the prior is shared); ``SingleRollout.supports``
 says whether a model qualifies, and ``DynamicsModel.rollout_changes`` falls back to the torch loop when it
 does not. Its numbers equal the torch loop's to float32 rounding (``tests/models/test_single_rollout.py``).
 """
