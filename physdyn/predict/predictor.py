@@ -405,9 +405,7 @@ def contact_prior_predictor(physics: Any = None, rate_hz: float = 15.0, num_poin
     cfg = load_experiment_config(PRESETS / "experiment" / "contact_prior.yaml", [])
     info = {"rate_hz": float(rate_hz), "num_points": int(num_points), "points_method": "hull_surface",
             "friction": physics.lateral_friction_object * physics.lateral_friction_ground, "gravity": abs(physics.gravity)}
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="Initializing zero-element tensors")  # the head on no features
-        model = DynamicsModel(cfg, Normalization(mode="std_inputs", input_mean=(0.0,) * 6, input_std=(1.0,) * 6), info)
+    model = DynamicsModel(cfg, Normalization(mode="std_inputs", input_mean=(0.0,) * 6, input_std=(1.0,) * 6), info)
     model.eval()
     return Predictor(model, name="contact prior", physics=physics)
 

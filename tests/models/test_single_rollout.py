@@ -50,7 +50,6 @@ def _first_state(store, sim):
     return points, truth["linear_velocity"][:, 0], truth["angular_velocity"][:, 0], truth
 
 
-@pytest.mark.filterwarnings("ignore:Initializing zero-element tensors")  # the `none` predictor's empty head weight
 @pytest.mark.parametrize("overrides", RECIPES, ids=lambda o: " ".join(o))
 def test_one_object_rollout_equals_the_torch_loop(quickstart_config, store, overrides):
     model = _model(quickstart_config, store, overrides)

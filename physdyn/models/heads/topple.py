@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import torch
@@ -10,6 +11,16 @@ from torch import nn
 
 from physdyn.models.heads.base import NUM_CHANGES, PredictionHead
 from physdyn.registry import HEADS
+
+
+def _linear(in_dim: int, out_dim: int) -> nn.Linear:
+    """nn.Linear; on the 0 features of the ``none`` predictor (no network) its weight is empty and the head
+    outputs its bias, zero at the start, without torch's warning that initialising an empty tensor does nothing."""
+    if in_dim:
+        return nn.Linear(in_dim, out_dim)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Initializing zero-element tensors")
+        return nn.Linear(in_dim, out_dim)
 
 
 @HEADS.register("topple")
@@ -32,7 +43,7 @@ class ToppleHead(PredictionHead):
     def __init__(self, config: "ToppleHead.Config | None" = None, in_dim: int = 1024):
         super().__init__()
         self.config = config or self.Config()
-        self.linear = nn.Linear(in_dim, NUM_CHANGES + 1)
+        self.linear = _linear(in_dim, NUM_CHANGES + 1)
 
     def forward(self, features: torch.Tensor):
         out = self.linear(features)
@@ -54,7 +65,7 @@ class NoToppleHead(PredictionHead):
 
     def __init__(self, config: "NoToppleHead.Config | None" = None, in_dim: int = 1024):
         super().__init__()
-        self.linear = nn.Linear(in_dim, NUM_CHANGES)
+        self.linear = _linear(in_dim, NUM_CHANGES)
 
     def forward(self, features: torch.Tensor):
         return self.linear(features), None
