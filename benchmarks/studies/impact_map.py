@@ -2,8 +2,8 @@
 from simulating the first 0.4 s (docs/ablations.md, "Simulate the impact, learn the rest"); issue #26 lists
 "a learned map from step 0 to the state at 0.4 s" as a lever. Before building one, this measures how much
 of the contact prior's error at 0.4 s (K = 6 steps at 15 Hz) a small MLP on the step-0 features of the
-topple classifier (physdyn/models/topple_classifier.py, 32 heading-free features) plus the step-0 velocities
-in the travel frame takes off, trained on one store's training split, scored on its validation and test
+topple classifier (physdyn/models/topple_classifier.py, 32 heading-free features) plus the step-0 spin in the
+travel frame and the prior's own state at step K takes off, trained on one store's training split, scored on its validation and test
 splits (shapes not trained on).
 
     python benchmarks/studies/impact_map.py data/quickstart_hull_large.zarr [--steps 6]

@@ -17,7 +17,6 @@ from typing import Any, Mapping
 import numpy as np
 
 from physdyn.data.windows import DELTA_KEYS, relative_rotation, world_oriented_points
-from physdyn.config import PhysicsConfig
 from physdyn.geometry.rotations import quat_multiply, quat_to_matrix, rotvec_to_quat, tilt_angle, world_delta_rotvec
 
 STATE_KEYS = ("com_position", "orientation_xyzw", "linear_velocity", "angular_velocity")
@@ -243,6 +242,7 @@ def simulated_start(model: Any, points_body: np.ndarray, q0: np.ndarray, p0: np.
     ``orientation_xyzw`` (B, steps + 1, 4) and the changes ``delta_*`` (B, steps, 3) between the simulated
     states (``delta_rotation`` world axis-angle).
     points_body (B, N, 3) body frame; body_inertia optional (B, 3, 3) I / m in world axes at step 0."""
+    from physdyn.config import PhysicsConfig  # the config loader (omegaconf): not for the numpy baselines' path
     from physdyn.sim.cloud_body import shared_simulator  # PyBullet: only for models that simulate
 
     q0 = _numpy(q0).reshape(-1, 4)

@@ -188,10 +188,12 @@ def _train(cfg: ExperimentConfig, out_dir: Path, model: DynamicsModel, datamodul
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*exists and is not empty.*")
         warnings.filterwarnings("ignore", message=".*smaller than the logging interval.*")
-        # A resumed run reaches an epoch's end before its first validation; best.ckpt's callback then finds no
-        # val/loss, keeps the best it restored and says "did you call log('val/loss')?" (Lightning raises
-        # instead once a validation has run, so a real missing metric is still caught).
-        warnings.filterwarnings("ignore", message=r".*monitor='val/loss'\)` could not find the monitored key.*")
+        if trainer.limit_val_batches:
+            # A resumed run reaches an epoch's end before its first validation; best.ckpt's callback then finds
+            # no val/loss, keeps the best it restored and says "did you call log('val/loss')?" (Lightning raises
+            # instead once a validation has run, so a real missing metric is still caught). With validation
+            # switched off the hint stays: it is then the only sign (and the warning below follows).
+            warnings.filterwarnings("ignore", message=r".*monitor='val/loss'\)` could not find the monitored key.*")
         ignore_lightning_noise()
         trainer.fit(model, datamodule=datamodule, ckpt_path=str(ckpt_path) if ckpt_path else None)
     scalar = lambda d: {k: float(v) for k, v in d.items() if torch.is_tensor(v) and v.numel() == 1}  # noqa: E731
@@ -206,6 +208,9 @@ def _train(cfg: ExperimentConfig, out_dir: Path, model: DynamicsModel, datamodul
         metrics.update(scalar(trainer.callback_metrics))
         if "val/loss" in trainer.callback_metrics:
             checkpoint.best_model_score = trainer.callback_metrics["val/loss"]
+        else:
+            warnings.warn("no validation ran (an empty validation split or trainer.limit_val_batches=0): best.ckpt "
+                          "holds the last weights, not the best", stacklevel=2)
     if not trainer.interrupted:
         trainer.save_checkpoint(out_dir / "last.ckpt")  # with the steps after the last validation
     if checkpoint.best_model_score is not None:

@@ -24,6 +24,7 @@ RECIPES = [
     # no network: the contact prior alone (contact_prior_predictor), its head's bias the only residual
     ["model.predictor.name=none", "model.head.name=no_topple", "model.prior=contact", "model.orientation_input=true",
      "model.residual_gate_linear=0.1", "model.residual_gate_angular=1.0"],
+    ["model.predictor.name=none", "model.head.name=topple", "model.prior=contact", "model.orientation_input=true"],
 ]
 
 

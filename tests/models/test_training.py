@@ -168,6 +168,12 @@ def test_resume_continues_and_finished_runs_are_protected(quickstart_config, rec
     assert not [w for w in recwarn if "monitored key" in str(w.message)]
 
 
+def test_a_run_without_validation_says_its_best_ckpt_is_the_last(quickstart_config):
+    with pytest.warns(UserWarning, match="no validation ran.*best.ckpt holds the last weights"):
+        result = fit(quickstart_config("trainer.max_steps=2", "trainer.limit_val_batches=0"))
+    assert result.best_checkpoint is not None and "best_val_loss" not in result.metrics
+
+
 @pytest.mark.slow  # seconds-scale; the default run stays near 3 minutes, CI runs it (-m slow)
 def test_cli_fit_output_is_free_of_lightning_noise(tiny_store, tmp_path):
     # Lightning's cloud-logger tip and a torch deprecation warning it triggers used to print on every run.

@@ -20,7 +20,9 @@ def _linear(in_dim: int, out_dim: int) -> nn.Linear:
         return nn.Linear(in_dim, out_dim)
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="Initializing zero-element tensors")
-        return nn.Linear(in_dim, out_dim)
+        layer = nn.Linear(in_dim, out_dim)
+    nn.init.zeros_(layer.bias)  # with no prior either, a network-less model then predicts no change
+    return layer
 
 
 @HEADS.register("topple")
