@@ -227,6 +227,7 @@ CASES = [
     ("reproduce-unknown-scale", ["reproduce", "--scale", "huge", "--out", "{ws}/suite"], "unknown scale"),
     ("reproduce-unknown-experiment", ["reproduce", "--scale", "tiny", "--out", "{ws}/suite", "--only", "nope"], "nope"),
     ("reproduce-workers-zero", ["reproduce", "--scale", "tiny", "--out", "{ws}/suite", "--workers", "0"], "--workers"),
+    ("reproduce-jobs-zero", ["reproduce", "--scale", "tiny", "--out", "{ws}/suite", "--jobs", "0"], "--jobs"),
     ("reproduce-missing-scale-file", ["reproduce", "--scale", "{ws}/nope.yaml", "--out", "{ws}/suite"], "nope.yaml"),
     # view and fit-topple
     ("view-missing-file", ["view", "{ws}/nope.json"], "does not exist"),

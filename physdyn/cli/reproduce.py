@@ -38,11 +38,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--scale", default="cpu", metavar="{tiny,cpu,paper}",
-                   help="tiny (tests, seconds per run), cpu (about 5 hours: its trainings run one after another), paper (the paper's sizes, a GPU), "
+                   help="tiny (tests, seconds per run), cpu (about 5 hours on one core; about half with --jobs 2), paper (the paper's sizes, a GPU), "
                         "or a YAML file like configs/reproduce/cpu.yaml (default: %(default)s)")
     p.add_argument("--out", required=True, help="folder for every dataset, run and evaluation, e.g. runs/paper-cpu")
     p.add_argument("--only", metavar="A,B", help="comma-separated experiments to run (default: all)")
     p.add_argument("--workers", type=int, help="simulation worker processes (default: the scale's)")
+    p.add_argument("--jobs", type=int, default=1,
+                   help="runs at once, each in its own process with the CPU cores shared out (default: %(default)s; "
+                        "2 on a 2-core machine trains the cpu scale in about half the time)")
     p.add_argument("--report-only", action="store_true", help="run nothing; write the results page from --out")
     p.add_argument("--results", metavar="PATH",
                    help="results page to write; its plots go to PATH's folder/<stem>/ (default: OUT/results.md; the "
@@ -57,6 +60,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.workers is not None and args.workers < 1:
         raise PhysdynError(f"--workers must be at least 1, got {args.workers}")
+    if args.jobs < 1:
+        raise PhysdynError(f"--jobs must be at least 1, got {args.jobs}")
     # The page goes inside --out unless named: a run never replaces a results page it did not make.
     args.results = args.results or f"{args.out.rstrip('/')}/results.md"
     command = "physdyn " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["reproduce"] else \
@@ -67,5 +72,5 @@ def run(args: argparse.Namespace) -> int:
         return 0
     only = [e.strip() for e in args.only.split(",") if e.strip()] if args.only else None
     run_suite(args.scale, args.out, only=only, workers=args.workers,
-              results=None if args.no_results else args.results, command=command)
+              results=None if args.no_results else args.results, command=command, jobs=args.jobs)
     return 0

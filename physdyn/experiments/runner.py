@@ -8,8 +8,10 @@ resumed, an incomplete store continued. The folder layout is ``suite.py``'s.
 from __future__ import annotations
 
 import json
+import multiprocessing
 import os
 import platform
+import queue
 import shutil
 import time
 from dataclasses import dataclass
@@ -86,13 +88,15 @@ def _record_runs_done(out: Path, done: int) -> None:
 
 
 class SuiteRunner:
-    """Executes RunSpecs under ``out``; stores are loaded once and shared by the runs that read them."""
+    """Executes RunSpecs under ``out``; stores are loaded once and shared by the runs that read them.
+    ``jobs`` > 1: that many runs at once, each in its own process (``_run_in_parallel``)."""
 
     def __init__(self, scale: ScaleConfig, scale_file: Path, out: str | Path, workers: int | None = None,
-                 log: Callable[[str], None] = print):
+                 log: Callable[[str], None] = print, jobs: int = 1):
         self.scale, self.scale_file, self.out = scale, scale_file, Path(out)
         self.workers = workers if workers is not None else scale.workers
         self.log = log
+        self.jobs = max(1, int(jobs))
         self._stores: dict[str, Any] = {}
 
     def store(self, name: str):
@@ -101,6 +105,8 @@ class SuiteRunner:
         return self._stores[name]
 
     def run(self, specs: Sequence[RunSpec]) -> list[RunOutcome]:
+        if self.jobs > 1:
+            return self._run_in_parallel(specs)
         outcomes = []
         for i, spec in enumerate(specs, 1):
             if is_finished(self.out, spec):
@@ -108,18 +114,79 @@ class SuiteRunner:
                 outcomes.append(RunOutcome(spec.name, "skipped", 0.0))
                 continue
             self.log(f"[{i}/{len(specs)}] run {spec.name}")
-            started = time.time()
-            resumed = getattr(self, f"_run_{spec.kind}")(spec)
-            wall = time.time() - started
-            d = run_dir(self.out, spec)
-            d.mkdir(parents=True, exist_ok=True)
-            write_text_atomic(d / RUN_FILE, json.dumps({"name": spec.name, "kind": spec.kind, "scale": self.scale.name,
-                                                        "wall_s": wall, "resumed": resumed, "finished": utc_now()},
-                                                       indent=1))
-            status = "resumed" if resumed else "done"
-            self.log(f"[{i}/{len(specs)}] {status} {spec.name} in {wall:.1f} s")
-            outcomes.append(RunOutcome(spec.name, status, wall))
+            outcome = self.run_one(spec)
+            self.log(f"[{i}/{len(specs)}] {outcome.status} {spec.name} in {outcome.wall_s:.1f} s")
+            outcomes.append(outcome)
         return outcomes
+
+    def run_one(self, spec: RunSpec) -> RunOutcome:
+        """One run, recorded in its folder's run.json."""
+        started = time.time()
+        resumed = getattr(self, f"_run_{spec.kind}")(spec)
+        wall = time.time() - started
+        d = run_dir(self.out, spec)
+        d.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(d / RUN_FILE, json.dumps({"name": spec.name, "kind": spec.kind, "scale": self.scale.name,
+                                                    "wall_s": wall, "resumed": resumed, "finished": utc_now()},
+                                                   indent=1))
+        return RunOutcome(spec.name, "resumed" if resumed else "done", wall)
+
+    def _run_in_parallel(self, specs: Sequence[RunSpec]) -> list[RunOutcome]:
+        """Up to ``jobs`` runs at once, each in a process of its own with cpu_count / jobs torch threads; a run
+        starts once the runs it needs among ``specs`` are finished. Trainings dominate the suite and each
+        gains little from a second thread (a small model, batches of 64), so two at once on two cores take
+        about half the time of one after another. On a failure no new run starts, the running ones finish,
+        and the first error is raised."""
+        names = {s.name for s in specs}
+        outcomes: dict[str, RunOutcome] = {}
+        pending: list[RunSpec] = []
+        for i, spec in enumerate(specs, 1):
+            if is_finished(self.out, spec):
+                self.log(f"[{i}/{len(specs)}] skip {spec.name} (finished)")
+                outcomes[spec.name] = RunOutcome(spec.name, "skipped", 0.0)
+            else:
+                pending.append(spec)
+        number = {s.name: i for i, s in enumerate(specs, 1)}
+        threads = max(1, (os.cpu_count() or 1) // self.jobs)
+        context = multiprocessing.get_context("spawn")  # fresh interpreters: no torch or PyBullet state forked
+        results = context.Queue()
+        running: dict[str, Any] = {}
+        failure: str | None = None
+        try:
+            while pending or running:
+                while failure is None and pending and len(running) < self.jobs:
+                    ready = next((s for s in pending if all(n not in names or n in outcomes for n in s.needs)), None)
+                    if ready is None:
+                        break
+                    pending.remove(ready)
+                    self.log(f"[{number[ready.name]}/{len(specs)}] run {ready.name}")
+                    process = context.Process(target=_run_in_process, name=ready.name, args=(
+                        str(self.scale_file), str(self.out), self.workers, ready, threads, results))
+                    process.start()
+                    running[ready.name] = process
+                if not running:
+                    break
+                try:
+                    name, outcome, error = results.get(timeout=1.0)
+                except queue.Empty:  # a process killed from outside reports nothing: notice that it is gone
+                    gone = next((n for n, p in running.items() if not p.is_alive() and p.exitcode), None)
+                    if gone is None:
+                        continue
+                    name, outcome, error = gone, None, f"its process ended with exit code {running[gone].exitcode}"
+                running.pop(name).join()
+                if error is not None:
+                    failure = failure or f"{name}: {error}"
+                    pending.clear()
+                    continue
+                outcomes[name] = outcome
+                self.log(f"[{number[name]}/{len(specs)}] {outcome.status} {name} in {outcome.wall_s:.1f} s")
+        finally:
+            for process in running.values():  # interrupted: a training stopped now resumes from its last.ckpt
+                process.terminate()
+                process.join()
+        if failure is not None:
+            raise PhysdynError(failure + "; the runs that finished are kept: run the same command again to go on")
+        return [outcomes[s.name] for s in specs]
 
     def _run_data(self, spec: RunSpec) -> bool:
         cfg = data_config(self.scale, spec.short)
@@ -164,26 +231,39 @@ class SuiteRunner:
         return False
 
 
+def _run_in_process(scale_file: str, out: str, workers: int, spec: RunSpec, threads: int, results: Any) -> None:
+    """One run of ``SuiteRunner._run_in_parallel`` in its own process: (name, outcome, None) or (name, None,
+    the error in one line) on ``results``."""
+    torch.set_num_threads(threads)
+    try:
+        scale, path = load_scale(scale_file)
+        outcome, error = SuiteRunner(scale, path, out, workers, log=lambda line: None).run_one(spec), None
+    except BaseException as e:  # noqa: BLE001 - reported to the parent, which stops the suite
+        outcome, error = None, str(e).splitlines()[0] if str(e) else type(e).__name__
+    results.put((spec.name, outcome, error))
+
+
 def _yaml(data: dict) -> str:
     return OmegaConf.to_yaml(OmegaConf.create(data))
 
 
 def run_suite(scale: str | Path, out: str | Path, only: Sequence[str] | None = None, workers: int | None = None,
-              results: str | Path | None = None, command: str = "", log: Callable[[str], None] = print) -> list[RunOutcome]:
-    """Run (or skip, or resume) the selected experiments at ``scale`` under ``out``; then write the results
-    page to ``results`` when given. Returns one outcome per run."""
+              results: str | Path | None = None, command: str = "", log: Callable[[str], None] = print,
+              jobs: int = 1) -> list[RunOutcome]:
+    """Run (or skip, or resume) the selected experiments at ``scale`` under ``out``, ``jobs`` at once; then
+    write the results page to ``results`` when given. Returns one outcome per run."""
     cfg, path = load_scale(scale)
     specs = select_runs(build_suite(), only)
     with write_lock(out):  # one `reproduce` per output folder; its stores and runs take their own locks too
         return _run_suite_locked(cfg, path, specs, out, only, workers, results, command or
-                                 f"run_suite({scale!r}, {str(out)!r}, only={list(only or [])})", log)
+                                 f"run_suite({scale!r}, {str(out)!r}, only={list(only or [])})", log, jobs)
 
 
 def _run_suite_locked(cfg: ScaleConfig, path: Path, specs: list[RunSpec], out: str | Path, only: Sequence[str] | None,
                       workers: int | None, results: str | Path | None, command: str,
-                      log: Callable[[str], None]) -> list[RunOutcome]:
+                      log: Callable[[str], None], jobs: int = 1) -> list[RunOutcome]:
     _manifest(Path(out), cfg, path, command, only)
-    outcomes = SuiteRunner(cfg, path, out, workers, log).run(specs)
+    outcomes = SuiteRunner(cfg, path, out, workers, log, jobs).run(specs)
     done = sum(o.status != "skipped" for o in outcomes)
     _record_runs_done(Path(out), done)
     log(f"reproduce: {done} run(s) done, {len(outcomes) - done} skipped (finished earlier), in {out}")

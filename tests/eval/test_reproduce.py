@@ -10,6 +10,7 @@ import time
 import pytest
 import torch
 
+from physdyn.errors import PhysdynError
 from physdyn.experiments import results_page, runner, suite
 from tests.conftest import run_cli
 
@@ -190,3 +191,26 @@ def test_selecting_experiments_pulls_in_what_they_need():
             elif spec.kind == "data":
                 suite.data_config(cfg, spec.short)
         suite.pretrain_config(cfg, path, suite.RunSpec("pretrain/encoder", "pretrain"), "runs/x")
+
+
+@pytest.mark.slow  # about a minute: every run starts a fresh interpreter; CI runs it
+def test_jobs_run_independent_runs_side_by_side_and_a_failure_stops_the_suite_in_one_line(tmp_path):
+    out = tmp_path / "out"
+    log: list[str] = []
+    outcomes = runner.run_suite("tiny", out, only=["lstm-vs-mlp"], log=log.append, jobs=2)
+    assert [o.status for o in outcomes] == ["done"] * 5
+    assert all((out / name / "run.json").is_file() for name in ("train/speakers-lstm", "train/speakers-mlp"))
+    assert (out / "eval/speakers-mlp/metrics.json").is_file()
+    # the two trainings need only the store: both start before either ends
+    started = [line for line in log if " run train/" in line]
+    first_end = next(i for i, line in enumerate(log) if " done train/" in line)
+    assert len(started) == 2 and all(log.index(line) < first_end for line in started)
+    # a run that fails stops the suite: the error in one line, nothing after it started, finished runs kept
+    bad = tmp_path / "bad.yaml"
+    text = (suite.SCALES_DIR / "tiny.yaml").read_text()
+    bad.write_text(text.replace("  - trainer.max_steps=2\n", "  - trainer.max_steps=2\n  - trainer.precision=nonsense\n", 1))
+    with pytest.raises(PhysdynError) as info:
+        runner.run_suite(str(bad), tmp_path / "bad", only=["lstm-vs-mlp"], log=log.append, jobs=2)
+    message = str(info.value)
+    assert message.startswith("train/speakers-") and "\n" not in message and "run the same command again" in message
+    assert (tmp_path / "bad/data/speakers").is_dir() and not (tmp_path / "bad/eval").exists()
