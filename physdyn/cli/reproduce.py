@@ -38,14 +38,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--scale", default="cpu", metavar="{tiny,cpu,paper}",
-                   help="tiny (tests, seconds per run), cpu (about 5 hours on one core; about half with --jobs 2), paper (the paper's sizes, a GPU), "
+                   help="tiny (tests, seconds per run), cpu (about 5 hours on one core; 0.6-0.7x that with --jobs 2), paper (the paper's sizes, a GPU), "
                         "or a YAML file like configs/reproduce/cpu.yaml (default: %(default)s)")
     p.add_argument("--out", required=True, help="folder for every dataset, run and evaluation, e.g. runs/paper-cpu")
     p.add_argument("--only", metavar="A,B", help="comma-separated experiments to run (default: all)")
     p.add_argument("--workers", type=int, help="simulation worker processes (default: the scale's)")
     p.add_argument("--jobs", type=int, default=1,
                    help="runs at once, each in its own process with the CPU cores shared out (default: %(default)s; "
-                        "2 on a 2-core machine trains the cpu scale in about half the time)")
+                        "2 on a 2-core machine: the cpu scale's trainings in about 0.6-0.7x the time)")
     p.add_argument("--report-only", action="store_true", help="run nothing; write the results page from --out")
     p.add_argument("--results", metavar="PATH",
                    help="results page to write; its plots go to PATH's folder/<stem>/ (default: OUT/results.md; the "
