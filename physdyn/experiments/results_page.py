@@ -366,7 +366,7 @@ def write_results(out: str | Path, results: str | Path, command: str = "") -> Pa
         "- **Runs made by:**",
     ]
     lines += [f"  - `{inv['command']}` on {inv['date']}"
-              + (f" ({inv['runs_done']} runs)" if "runs_done" in inv else "") for inv in makers]
+              + (f" ({inv['runs_done']} run{'' if inv['runs_done'] == 1 else 's'})" if "runs_done" in inv else "") for inv in makers]
     if idle:
         lines += [f"  - and {idle} later invocation(s) that found every selected run finished"]
     lines += ["", "All errors are on the test split (shapes never seen in training). Runs that were not made (see "
