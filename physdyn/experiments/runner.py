@@ -135,7 +135,7 @@ class SuiteRunner:
         """Up to ``jobs`` runs at once, each in a process of its own with cpu_count / jobs torch threads; a run
         starts once the runs it needs among ``specs`` are finished. Trainings dominate the suite and each
         gains little from a second thread (a small model, batches of 64), so two at once on two cores take
-        about half the time of one after another. On a failure no new run starts, the running ones finish,
+        0.6-0.7x the time of one after another (docs/reproduce.md). On a failure no new run starts, the running ones finish,
         and the first error is raised."""
         names = {s.name for s in specs}
         outcomes: dict[str, RunOutcome] = {}
