@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import warnings
 
+from physdyn.errors import PredictionError
+
 # Handlers import the library themselves, so `physdyn --help` stays light (see physdyn/cli/__init__.py).
 
 ORDER = 45
@@ -88,8 +90,6 @@ def run(args: argparse.Namespace) -> int:
     check_budget(args.budget)
     check_search(args.search, args.pybullet_step, args.screen)
     if args.render and args.search != "model" and args.no_check and not args.verify:
-        from physdyn.errors import PredictionError
-
         raise PredictionError("--render needs a trajectory: a plan ranked by PyBullet keeps none without its final "
                               "check; drop --no-check or pass --verify")
     orientation = check_orientation(args.orientation)

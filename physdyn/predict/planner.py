@@ -294,7 +294,8 @@ class BulletRollout:
                 rest = rest + chunk if still else 0
             pos, orn = pb.getBasePositionAndOrientation(self.body, physicsClientId=cid)
             positions[i], quats[i] = pos, orn
-            toppled[i] |= tilt_angle(self.orientation, quat_multiply(np.asarray(orn), principal)) > TOPPLE_ANGLE
+            if not recorded_last:  # stopped between two frames: its final pose is checked here
+                toppled[i] |= tilt_angle(self.orientation, quat_multiply(np.asarray(orn), principal)) > TOPPLE_ANGLE
             if self.record:
                 trajectories.append(self._trajectory(track if not recorded_last else track[:-1], pos, orn))
         # PyBullet's base frame is the principal frame: back to the mesh frame, R_mesh = R_base A^T
