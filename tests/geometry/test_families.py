@@ -12,7 +12,7 @@ from physdyn.geometry.families import ShapeFamily, ShapeInstance
 from physdyn.geometry.families.primitives import PRIMITIVE_BUILDERS
 from physdyn.registry import SHAPE_FAMILIES
 
-PROCEDURAL = ["primitives", "bottles", "mugs", "trashcans", "speakers"]
+PROCEDURAL = ["primitives", "bottles", "mugs", "trashcans", "speakers", "blobs"]
 N_INSTANCES = 16  # per family; primitives cycles through its 12 kinds
 
 
@@ -100,6 +100,21 @@ def test_primitives_are_scaled_non_uniformly(instances):
     boxes = [i for i in instances["primitives"] if "kind=box" in i.source]
     ratios = [np.sort(b.mesh.extents)[0] / np.sort(b.mesh.extents)[-1] for b in boxes]
     assert any(r < 0.95 for r in ratios)
+
+
+def test_blobs_are_one_irregular_solid_of_several_pieces(instances):
+    for inst in instances["blobs"]:
+        mesh = inst.mesh
+        assert mesh.body_count == 1, inst.source  # the pieces overlap, so the union is one solid
+        assert mesh.volume < 0.9 * mesh.convex_hull.volume, inst.source  # not convex
+        assert len(mesh.convex_hull.vertices) >= 12, inst.source  # many facets to land on
+    pieces = {int(inst.source.split("pieces=")[1].split(",")[0]) for inst in instances["blobs"]}
+    assert min(pieces) >= 3 and max(pieces) <= 8 and len(pieces) >= 3
+
+
+def test_blobs_parameters_are_checked():
+    with pytest.raises(ShapeError, match="pieces_min"):
+        build("blobs", pieces_min=5, pieces_max=2)
 
 
 def test_bottles_have_a_neck_narrower_than_the_body(instances):

@@ -4,6 +4,7 @@ Importing this package registers the built-ins.
 """
 
 from physdyn.geometry.families import (  # noqa: F401  (imported to register)
+    blobs,
     bottles,
     meshes,
     mugs,
