@@ -4,11 +4,17 @@ asks the same of a PointNet that sees the cloud itself (oriented as at step 0, i
 the step-0 velocities and the contact prior's own state at step K, trained on growing numbers of shapes,
 and scored on shapes it never saw: the store's validation and test splits and an external set of meshes.
 
-    # on this machine: the inputs (the prior's roll-out is numpy/torch on the CPU)
-    python benchmarks/studies/impact_pointnet.py export data/quickstart_hull_many.zarr \\
-        --external runs/external_val/external_60x10_hull256.zarr --out runs/impact/many.npz
-    # anywhere (a GPU where there is one): train on 300, 1,000 and all training shapes of the first store
-    python benchmarks/studies/impact_pointnet.py train runs/impact/many.npz --runs 0:300 0:1000 0:all --device cuda
+    # on this machine: the external set (random_urdfs 100-159), then the inputs (the prior's roll-out, CPU)
+    python -c "import sys; sys.path.insert(0, 'benchmarks'); from pathlib import Path; \
+        from external_meshes import collect_meshes, mesh_folder_store; w = Path('runs/external_val_100'); \
+        collect_meshes(w / 'meshes', 60, 100, False); mesh_folder_store(w / 'meshes', w / 'urdf_100_159_hull256.zarr', \
+        10, overrides=('points_method=hull_surface', 'num_points=256'))"
+    python benchmarks/studies/impact_pointnet.py export data/quickstart_hull_many.zarr data/clusters_hull.zarr \
+        --external runs/external_val_100/urdf_100_159_hull256.zarr --out runs/impact/many.npz
+    # anywhere (a GPU where there is one): 300, 1,000 and all training shapes of the first store, both stores,
+    # and the control without the cloud; --k 0 for the state at rest
+    python benchmarks/studies/impact_pointnet.py train runs/impact/many.npz --k 6 \
+        --runs 0:300 0:1000 0:all 1:all 0,1:all 0,1:all:scalars --device cuda --steps 10000 --batch 1024
 
 Targets as impact_map.py: the truth's state at step K minus the prior's, in the frame of the step-0 travel
 (velocity along and across, spin w_z, displacement along and across, turn about the vertical); medians of
@@ -27,7 +33,6 @@ import numpy as np
 import torch
 
 NAMES = ("v along", "v across", "w_z", "p along", "p across", "yaw")
-GROUPS = ("train", "val", "test", "external")
 
 
 def export(stores: list[str], external: str | None, steps: list[int], out: Path) -> None:
@@ -56,7 +61,9 @@ def export(stores: list[str], external: str | None, steps: list[int], out: Path)
                         spin_inertia=inertia)
             u = travel_frame(v0)
             across = np.stack([-u[:, 1], u[:, 0]], axis=1)
-            tv = lambda a: np.stack([(a[:, :2] * u).sum(1), (a[:, :2] * across).sum(1), a[:, 2]], axis=1)  # noqa: E731
+
+            def tv(a):  # a (B, 3) vector in the travel frame: along, across, up
+                return np.stack([(a[:, :2] * u).sum(1), (a[:, :2] * across).sum(1), a[:, 2]], axis=1)
 
             def frame(v, w, p, q):
                 dp = p[:, :2] - p0[:, :2]
@@ -72,6 +79,8 @@ def export(stores: list[str], external: str | None, steps: list[int], out: Path)
                               o.orientation_xyzw[rows, k])
                 diff = true - prior
                 diff[:, 5] = (diff[:, 5] + np.pi) % (2 * np.pi) - np.pi
+                # At K = 0 the prior's state is read at the truth's last frame, a length a deployed correction
+                # would not know; the prior is at rest there in 99.9 % of pushes, so it tells nothing.
                 parts[f"scalars_{K}"].append(np.concatenate([tv(v0), tv(w0), prior, inertia[:, None]], axis=1))
                 parts[f"diff_{K}"].append(diff)
                 parts[f"true_{K}"].append(true)
@@ -97,20 +106,21 @@ class ImpactNet(torch.nn.Module):
     """PointNet over the step-0 cloud in the travel frame (xyz and the height above the lowest point),
     max-pooled, joined with the push's scalars."""
 
-    def __init__(self, n_scalars: int, width: int = 256, use_cloud: bool = True):
+    def __init__(self, n_scalars: int, width: int = 256, use_cloud: bool = True, outputs: int = 6):
         super().__init__()
         self.use_cloud = use_cloud
         self.points = torch.nn.Sequential(torch.nn.Linear(4, 64), torch.nn.ReLU(), torch.nn.Linear(64, 128),
                                           torch.nn.ReLU(), torch.nn.Linear(128, width)) if use_cloud else None
         inner = (width if use_cloud else 0) + n_scalars
         self.head = torch.nn.Sequential(torch.nn.Linear(inner, width), torch.nn.ReLU(), torch.nn.Linear(width, width),
-                                        torch.nn.ReLU(), torch.nn.Linear(width, 6))
+                                        torch.nn.ReLU(), torch.nn.Linear(width, outputs))
 
-    def forward(self, cloud: torch.Tensor, scalars: torch.Tensor) -> torch.Tensor:
+    def forward(self, cloud: torch.Tensor | None, scalars: torch.Tensor) -> torch.Tensor:
         if not self.use_cloud:
             return self.head(scalars)
         z = cloud[..., 2:3] - cloud[..., 2:3].amin(dim=1, keepdim=True)
-        f = self.points(torch.cat([cloud * 10.0, z * 10.0], dim=-1)).amax(dim=1)  # metres -> decimetres
+        # decimetres: inputs of order one for the first layer
+        f = self.points(torch.cat([cloud * 10.0, z * 10.0], dim=-1)).amax(dim=1)
         return self.head(torch.cat([f, scalars], dim=-1))
 
 
@@ -123,34 +133,29 @@ def parse_run(spec: str) -> tuple[list[int], int, bool]:
     return stores, n, not (len(parts) > 2 and parts[2] == "scalars")
 
 
+def wrap_yaw(residual: np.ndarray) -> np.ndarray:
+    """The yaw column (5) of (B, 6) residuals wrapped into [-pi, pi), in place; returns it."""
+    residual[:, 5] = (residual[:, 5] + np.pi) % (2 * np.pi) - np.pi
+    return residual
+
+
 def train(data_path: Path, K: int, specs: list[str], steps: int, device: str, batch: int, out: Path | None,
           minutes: float, width: int = 256) -> None:
     torch.set_float32_matmul_precision("high")  # TF32 on a GPU: the study's figures need no more
     d = dict(np.load(data_path))
-    d.update(scalars=d[f"scalars_{K}"], diff=d[f"diff_{K}"])
+    raw_scalars, diff = d[f"scalars_{K}"], d[f"diff_{K}"]
+    # At rest (K = 0) the velocities are zero up to the stopping threshold: only position and yaw are
+    # learned, chosen on and scored.
+    cols = [3, 4, 5] if K == 0 else list(range(6))
     dev = torch.device(device)
-    rng = np.random.default_rng(0)
     group, shape, source, names = d["group"], d["shape"], d["source"], [str(n) for n in d["names"]]
     clouds = torch.tensor(d["clouds"], device=dev)
     frame = torch.tensor(d["frame"], device=dev).view(-1, 3, 3)
-    tr_all = group == 0
-    sc_mu, sc_sd = d["scalars"][tr_all].mean(0), d["scalars"][tr_all].std(0) + 1e-9
-    y_mu, y_sd = d["diff"][tr_all].mean(0), d["diff"][tr_all].std(0) + 1e-9
-    scalars = torch.tensor((d["scalars"] - sc_mu) / sc_sd, device=dev)
-    target = torch.tensor((d["diff"] - y_mu) / y_sd, device=dev)
     shape_t = torch.tensor(shape, device=dev)
+    tr_all = group == 0
 
     def cloud_of(idx: torch.Tensor) -> torch.Tensor:
         return torch.einsum("bij,bnj->bni", frame[idx], clouds[shape_t[idx]])
-
-    def predict(net, idx: np.ndarray) -> np.ndarray:
-        net.eval()
-        outs = []
-        with torch.no_grad():
-            for part in torch.tensor(idx, device=dev).split(8192):
-                outs.append(net(cloud_of(part), scalars[part]).cpu().numpy())
-        net.train()
-        return np.concatenate(outs) * y_sd + y_mu if outs else np.zeros((0, 6))
 
     # the scored groups: each store's validation and test splits (shapes never trained on), the external set
     groups = {f"{g} {names[k]}": np.flatnonzero((group == gi) & (source == k))
@@ -161,56 +166,81 @@ def train(data_path: Path, K: int, specs: list[str], steps: int, device: str, ba
         stores, n, use_cloud = parse_run(spec)
         torch.manual_seed(0)
         in_stores = np.isin(source, stores)
-        # the first n training shapes of the first store (a fixed random order), all of the others'
-        first = rng.permutation(np.unique(shape[tr_all & (source == stores[0])]))
+        # the first n training shapes of the first store in one fixed random order (so that the 300 of one
+        # run are among the 1,000 of the next), all of the others'
+        first = np.random.default_rng(0).permutation(np.unique(shape[tr_all & (source == stores[0])]))
         keep = np.concatenate([first[:n] if n else first, np.unique(shape[tr_all & in_stores & (source != stores[0])])])
         tr = np.flatnonzero(tr_all & np.isin(shape, keep))
         va = np.flatnonzero((group == 1) & in_stores)
-        net = ImpactNet(scalars.shape[1], width=width, use_cloud=use_cloud).to(dev)
+        if not len(tr) or not len(va):
+            sys.exit(f"run {spec}: {len(tr)} training and {len(va)} validation pushes; name stores that have both")
+        # standardised with the run's own training pushes: nothing scored as held out shapes the inputs
+        sc_mu, sc_sd = raw_scalars[tr].mean(0), raw_scalars[tr].std(0) + 1e-9
+        y_mu, y_sd = diff[tr].mean(0), diff[tr].std(0) + 1e-9
+        scalars = torch.tensor((raw_scalars - sc_mu) / sc_sd, device=dev)
+        target = torch.tensor(((diff - y_mu) / y_sd)[:, cols], device=dev)
+
+        def predict(net, idx: np.ndarray) -> np.ndarray:
+            """(len(idx), 6) corrections (zero in the columns not learned)."""
+            net.eval()
+            fix = np.zeros((len(idx), 6))
+            with torch.no_grad():
+                for start in range(0, len(idx), 8192):
+                    part = torch.tensor(idx[start:start + 8192], device=dev)
+                    y = net(cloud_of(part) if use_cloud else None, scalars[part]).cpu().numpy()
+                    fix[start:start + len(part), cols] = y * y_sd[cols] + y_mu[cols]
+            net.train()
+            return fix
+
+        net = ImpactNet(scalars.shape[1], width=width, use_cloud=use_cloud, outputs=len(cols)).to(dev)
         opt = torch.optim.AdamW(net.parameters(), lr=1e-3, weight_decay=1e-4)
         sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=1e-3, total_steps=steps, pct_start=0.05)
         tr_t = torch.tensor(tr, device=dev)
         best, best_state, t0, done = np.inf, None, time.time(), steps
         for step in range(steps):
             idx = tr_t[torch.randint(len(tr_t), (batch,), device=dev)]
-            loss = torch.nn.functional.smooth_l1_loss(net(cloud_of(idx), scalars[idx]), target[idx])
+            pred = net(cloud_of(idx) if use_cloud else None, scalars[idx])
+            loss = torch.nn.functional.smooth_l1_loss(pred, target[idx])
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
             sched.step()
             if (step + 1) % max(1, steps // 20) == 0 or step + 1 == steps:
-                v = float(np.mean(np.abs((d["diff"][va] - predict(net, va)) / y_sd)))
+                rest = wrap_yaw(diff[va] - predict(net, va))
+                v = float(np.mean(np.abs(rest[:, cols] / y_sd[cols])))
                 if v < best:
                     best, best_state = v, {k: t.detach().clone() for k, t in net.state_dict().items()}
-                if time.time() - t0 > 60 * minutes:  # the time guard: score the best so far, say where it stopped
+                # the time guard: the best so far is scored, and the row says the schedule was cut
+                if time.time() - t0 > 60 * minutes:
                     done = step + 1
                     break
         net.load_state_dict(best_state)
-        row = {"run": spec, "train_stores": [names[k] for k in stores], "train_shapes": int(len(keep)),
-               "train_pushes": int(len(tr)), "cloud": use_cloud, "seconds": round(time.time() - t0, 1),
-               "steps": done, "width": width, "ratios": {}}
+        row = {"run": spec, "k": K, "train_stores": [names[k] for k in stores], "train_shapes": int(len(keep)),
+               "train_pushes": int(len(tr)), "cloud": use_cloud, "width": width, "batch": batch,
+               "requested_steps": steps, "steps": done, "capped": done < steps,
+               "seconds": round(time.time() - t0, 1), "ratios": {}}
         for name, idx in {"train": tr, **groups}.items():
             if not len(idx):
                 continue
-            y = d["diff"][idx]
-            rest = y - predict(net, idx)
-            rest[:, 5] = (rest[:, 5] + np.pi) % (2 * np.pi) - np.pi
-            row["ratios"][name] = {q: float(np.median(np.abs(rest[:, j])) / np.median(np.abs(y[:, j])))
-                                   for j, q in enumerate(NAMES)}
+            y = diff[idx]
+            rest = wrap_yaw(y - predict(net, idx))
+            row["ratios"][name] = {NAMES[j]: float(np.median(np.abs(rest[:, j])) / np.median(np.abs(y[:, j])))
+                                   for j in cols}
             row["ratios"][name]["n"] = int(len(idx))
         results.append(row)
         print(json.dumps(row), flush=True)
         if out:  # after every run, so that a run cut short loses only itself
             out.write_text(json.dumps(results, indent=1))
+    shown = [NAMES[j] for j in cols]
     print(f"\nK = {K or 'the last frame'}; {len(group)} pushes; the network's error as a fraction of "
           "the prior's (median |error|)")
-    print("| run (stores:shapes) | training shapes (pushes) | input | scored on | " + " | ".join(NAMES) + " |")
-    print("|---|---|---|---|" + "---|" * len(NAMES))
+    print("| run (stores:shapes) | training shapes (pushes) | input | steps | scored on | " + " | ".join(shown) + " |")
+    print("|---|---|---|---|---|" + "---|" * len(shown))
     for row in results:
         for name, r in row["ratios"].items():
             print(f"| {row['run']} | {row['train_shapes']} ({row['train_pushes']}) | "
-                  f"{'cloud + scalars' if row['cloud'] else 'scalars'} | {name} ({r['n']}) | "
-                  + " | ".join(f"{r[q]:.2f}" for q in NAMES) + " |")
+                  f"{'cloud + scalars' if row['cloud'] else 'scalars'} | {row['steps']}{' (capped)' if row['capped'] else ''} | "
+                  f"{name} ({r['n']}) | " + " | ".join(f"{r[q]:.2f}" for q in shown) + " |")
 
 
 def main() -> None:

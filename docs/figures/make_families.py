@@ -1,4 +1,4 @@
-"""Draw five instances of each procedural family (blobs included): `python docs/figures/make_families.py` -> families.png."""
+"""Draw five instances of each procedural family (clusters included): `python docs/figures/make_families.py` -> families.png."""
 
 from pathlib import Path
 
@@ -11,7 +11,7 @@ from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 
 from physdyn.registry import SHAPE_FAMILIES  # noqa: E402
 
-FAMILIES = ["primitives", "bottles", "mugs", "trashcans", "speakers", "blobs"]
+FAMILIES = ["primitives", "bottles", "mugs", "trashcans", "speakers", "clusters"]
 
 
 def main(out: Path = Path(__file__).with_name("families.png"), per_family: int = 5) -> None:

@@ -12,7 +12,7 @@ from physdyn.geometry.families import ShapeFamily, ShapeInstance
 from physdyn.geometry.families.primitives import PRIMITIVE_BUILDERS
 from physdyn.registry import SHAPE_FAMILIES
 
-PROCEDURAL = ["primitives", "bottles", "mugs", "trashcans", "speakers", "blobs"]
+PROCEDURAL = ["primitives", "bottles", "mugs", "trashcans", "speakers", "clusters"]
 N_INSTANCES = 16  # per family; primitives cycles through its 12 kinds
 
 
@@ -102,19 +102,29 @@ def test_primitives_are_scaled_non_uniformly(instances):
     assert any(r < 0.95 for r in ratios)
 
 
-def test_blobs_are_one_irregular_solid_of_several_pieces(instances):
-    for inst in instances["blobs"]:
+def test_clusters_are_one_irregular_solid_of_several_pieces(instances):
+    for inst in instances["clusters"]:
         mesh = inst.mesh
-        assert mesh.body_count == 1, inst.source  # the pieces overlap, so the union is one solid
+        assert mesh.body_count == 1, inst.source  # the pieces always overlap: one solid, no enclosed void
         assert mesh.volume < 0.9 * mesh.convex_hull.volume, inst.source  # not convex
         assert len(mesh.convex_hull.vertices) >= 12, inst.source  # many facets to land on
-    pieces = {int(inst.source.split("pieces=")[1].split(",")[0]) for inst in instances["blobs"]}
+    pieces = {int(inst.source.split("pieces=")[1].split(",")[0]) for inst in instances["clusters"]}
     assert min(pieces) >= 3 and max(pieces) <= 8 and len(pieces) >= 3
 
 
-def test_blobs_parameters_are_checked():
-    with pytest.raises(ShapeError, match="pieces_min"):
-        build("blobs", pieces_min=5, pieces_max=2)
+def test_clusters_pieces_overlap_even_when_few_and_thin():
+    # Few points per piece make thin slivers, the hardest case for overlap: still one solid every time.
+    family = build("clusters", points_per_piece=8, pieces_min=8, pieces_max=8)
+    for inst in draw(family, 40, seed=5):
+        assert inst.mesh.body_count == 1 and inst.mesh.is_volume, inst.source
+
+
+@pytest.mark.parametrize("params, named", [({"pieces_min": 5, "pieces_max": 2}, "pieces_min=5"),
+                                           ({"points_per_piece": 4}, "points_per_piece=4"),
+                                           ({"size_min": 0.3, "size_max": 0.1}, "size_min=0.3")])
+def test_clusters_parameters_are_checked(params, named):
+    with pytest.raises(ShapeError, match=named):
+        build("clusters", **params)
 
 
 def test_bottles_have_a_neck_narrower_than_the_body(instances):

@@ -4,8 +4,8 @@ Importing this package registers the built-ins.
 """
 
 from physdyn.geometry.families import (  # noqa: F401  (imported to register)
-    blobs,
     bottles,
+    clusters,
     meshes,
     mugs,
     primitives,
