@@ -140,7 +140,7 @@ def wrap_yaw(residual: np.ndarray) -> np.ndarray:
 
 
 def train(data_path: Path, K: int, specs: list[str], steps: int, device: str, batch: int, out: Path | None,
-          minutes: float, width: int = 256) -> None:
+          minutes: float, width: int = 256, seed: int = 0) -> None:
     torch.set_float32_matmul_precision("high")  # TF32 on a GPU: the study's figures need no more
     d = dict(np.load(data_path))
     raw_scalars, diff = d[f"scalars_{K}"], d[f"diff_{K}"]
@@ -164,7 +164,7 @@ def train(data_path: Path, K: int, specs: list[str], steps: int, device: str, ba
     results = []
     for spec in specs:
         stores, n, use_cloud = parse_run(spec)
-        torch.manual_seed(0)
+        torch.manual_seed(seed)
         in_stores = np.isin(source, stores)
         # the first n training shapes of the first store in one fixed random order (so that the 300 of one
         # run are among the 1,000 of the next), all of the others'
@@ -215,7 +215,7 @@ def train(data_path: Path, K: int, specs: list[str], steps: int, device: str, ba
                     done = step + 1
                     break
         net.load_state_dict(best_state)
-        row = {"run": spec, "k": K, "train_stores": [names[k] for k in stores], "train_shapes": int(len(keep)),
+        row = {"run": spec, "k": K, "seed": seed, "train_stores": [names[k] for k in stores], "train_shapes": int(len(keep)),
                "train_pushes": int(len(tr)), "cloud": use_cloud, "width": width, "batch": batch,
                "requested_steps": steps, "steps": done, "capped": done < steps,
                "seconds": round(time.time() - t0, 1), "ratios": {}}
@@ -262,13 +262,14 @@ def main() -> None:
     t.add_argument("--device", default="cpu")
     t.add_argument("--out", type=Path, help="the results as JSON")
     t.add_argument("--width", type=int, default=256, help="the PointNet's feature size and the head's width")
+    t.add_argument("--seed", type=int, default=0, help="the network's initialisation and batches (not the shape subsets)")
     t.add_argument("--minutes", type=float, default=60.0, help="stop a run after this long (its best so far is scored)")
     args = ap.parse_args()
     if args.cmd == "export":
         torch.set_num_threads(1)
         export(args.stores, args.external, args.steps, args.out)
     else:
-        train(args.data, args.k, args.runs, args.steps, args.device, args.batch, args.out, args.minutes, args.width)
+        train(args.data, args.k, args.runs, args.steps, args.device, args.batch, args.out, args.minutes, args.width, args.seed)
 
 
 if __name__ == "__main__":
