@@ -161,6 +161,14 @@ def train(data_path: Path, K: int, specs: list[str], steps: int, device: str, ba
     groups = {f"{g} {names[k]}": np.flatnonzero((group == gi) & (source == k))
               for k in range(len(names)) for gi, g in ((1, "val"), (2, "test"))}
     groups["external"] = np.flatnonzero(group == 3)
+    # the prior's own errors, the scale every ratio below is of
+    print(f"the contact prior's own error at K = {K or 'the last frame'} (medians):")
+    for name, idx in groups.items():
+        if len(idx):
+            y = diff[idx]
+            print(f"  {name} ({len(idx)}): yaw {np.degrees(np.median(np.abs(y[:, 5]))):.1f} deg, "
+                  f"position {100 * np.median(np.hypot(y[:, 3], y[:, 4])):.2f} cm"
+                  + (f", spin w_z {np.median(np.abs(y[:, 2])):.3f} rad/s" if K else ""))
     results = []
     for spec in specs:
         stores, n, use_cloud = parse_run(spec)
@@ -194,7 +202,7 @@ def train(data_path: Path, K: int, specs: list[str], steps: int, device: str, ba
 
         net = ImpactNet(scalars.shape[1], width=width, use_cloud=use_cloud, outputs=len(cols)).to(dev)
         opt = torch.optim.AdamW(net.parameters(), lr=1e-3, weight_decay=1e-4)
-        sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=1e-3, total_steps=steps, pct_start=0.05)
+        sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=1e-3, total_steps=steps, pct_start=max(0.05, 2.0 / steps))
         tr_t = torch.tensor(tr, device=dev)
         best, best_state, t0, done = np.inf, None, time.time(), steps
         for step in range(steps):
