@@ -46,6 +46,19 @@ def travel_frame(v0: np.ndarray) -> np.ndarray:
     return np.where(n > 1e-9, d / np.maximum(n, 1e-12), np.array([1.0, 0.0]))
 
 
+def in_travel_frame(a: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """(B, 3) vectors in the frame of the (B, 2) travel directions ``u``: along, across, up."""
+    return np.stack([(a[:, :2] * u).sum(1), u[:, 0] * a[:, 1] - u[:, 1] * a[:, 0], a[:, 2]], axis=1)
+
+
+def travel_state(v, w, p, q, p0, q0, u) -> np.ndarray:
+    """(B, 6): velocity along and across the travel ``u``, spin w_z, displacement from ``p0`` along and
+    across, turn about the vertical since ``q0``."""
+    vt, dp = in_travel_frame(v, u), in_travel_frame(p - p0, u)
+    turn = yaw_of(relative_rotation(q0, q[:, None])[:, 0])
+    return np.stack([vt[:, 0], vt[:, 1], w[:, 2], dp[:, 0], dp[:, 1], turn], axis=1)
+
+
 def states(store, sims: np.ndarray, K: int, model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """-> features (B, F), truth - prior at step K (B, 6), the truth's own (B, 6) change over K steps."""
     first = store.start[sims]
@@ -57,19 +70,13 @@ def states(store, sims: np.ndarray, K: int, model) -> tuple[np.ndarray, np.ndarr
     out = rollout(model, points, q0, p0, v0, w0, K, spin_inertia=store_spin_inertia(store, sims, q0))
     u = travel_frame(v0)
     across = np.stack([-u[:, 1], u[:, 0]], axis=1)
-
-    def frame(v, w, p, q):
-        dp = p[:, :2] - p0[:, :2]
-        turn = yaw_of(relative_rotation(q0, q[:, None])[:, 0])
-        return np.stack([(v[:, :2] * u).sum(1), (v[:, :2] * across).sum(1), w[:, 2],
-                         (dp * u).sum(1), (dp * across).sum(1), turn], axis=1)
-
-    true = frame(vK, wK, pK, qK)
-    prior = frame(out.linear_velocity[:, K], out.angular_velocity[:, K], out.com_position[:, K], out.orientation_xyzw[:, K])
+    true = travel_state(vK, wK, pK, qK, p0, q0, u)
+    prior = travel_state(out.linear_velocity[:, K], out.angular_velocity[:, K], out.com_position[:, K],
+                         out.orientation_xyzw[:, K], p0, q0, u)
     diff = true - prior
     diff[:, 5] = (diff[:, 5] + np.pi) % (2 * np.pi) - np.pi
     cloud = world_oriented_points(points, q0)
-    w_travel = np.stack([(w0[:, :2] * u).sum(1), (w0[:, :2] * across).sum(1), w0[:, 2]], axis=1)
+    w_travel = in_travel_frame(w0, u)
     features = [topple_features(cloud, v0, w0), w_travel, prior]
     if FOOTPRINT:  # the prior's own footprint (4 points, their weights) in the travel frame
         g = contact_geometry(torch.tensor(cloud, dtype=torch.float32)).numpy().astype(np.float64)

@@ -36,10 +36,10 @@ NAMES = ("v along", "v across", "w_z", "p along", "p across", "yaw")
 
 
 def export(stores: list[str], external: str | None, steps: list[int], out: Path) -> None:
-    from impact_map import travel_frame, yaw_of
+    from impact_map import in_travel_frame, travel_frame, travel_state
 
     from physdyn.data.store import load_store
-    from physdyn.data.windows import relative_rotation, store_spin_inertia
+    from physdyn.data.windows import store_spin_inertia
     from physdyn.eval.rollout import rollout
     from physdyn.geometry.rotations import quat_to_matrix
     from physdyn.predict.predictor import contact_prior_predictor
@@ -62,26 +62,17 @@ def export(stores: list[str], external: str | None, steps: list[int], out: Path)
             u = travel_frame(v0)
             across = np.stack([-u[:, 1], u[:, 0]], axis=1)
 
-            def tv(a):  # a (B, 3) vector in the travel frame: along, across, up
-                return np.stack([(a[:, :2] * u).sum(1), (a[:, :2] * across).sum(1), a[:, 2]], axis=1)
-
-            def frame(v, w, p, q):
-                dp = p[:, :2] - p0[:, :2]
-                turn = yaw_of(relative_rotation(q0, q[:, None])[:, 0])
-                return np.stack([(v[:, :2] * u).sum(1), (v[:, :2] * across).sum(1), w[:, 2],
-                                 (dp * u).sum(1), (dp * across).sum(1), turn], axis=1)
-
             for K in steps:  # K = 0: each push's last frame (at rest), the state the frontier scores
                 k = lengths[chunk] - 1 if K == 0 else np.full(len(chunk), K)
-                true = frame(store.linear_velocity[first + k], store.angular_velocity[first + k],
-                             store.com_position[first + k], store.orientation_xyzw[first + k])
-                prior = frame(o.linear_velocity[rows, k], o.angular_velocity[rows, k], o.com_position[rows, k],
-                              o.orientation_xyzw[rows, k])
-                diff = true - prior
-                diff[:, 5] = (diff[:, 5] + np.pi) % (2 * np.pi) - np.pi
+                true = travel_state(store.linear_velocity[first + k], store.angular_velocity[first + k],
+                                    store.com_position[first + k], store.orientation_xyzw[first + k], p0, q0, u)
+                prior = travel_state(o.linear_velocity[rows, k], o.angular_velocity[rows, k], o.com_position[rows, k],
+                                     o.orientation_xyzw[rows, k], p0, q0, u)
+                diff = wrap_yaw(true - prior)
                 # At K = 0 the prior's state is read at the truth's last frame, a length a deployed correction
                 # would not know; the prior is at rest there in 99.9 % of pushes, so it tells nothing.
-                parts[f"scalars_{K}"].append(np.concatenate([tv(v0), tv(w0), prior, inertia[:, None]], axis=1))
+                parts[f"scalars_{K}"].append(np.concatenate([in_travel_frame(v0, u), in_travel_frame(w0, u), prior,
+                                                             inertia[:, None]], axis=1))
                 parts[f"diff_{K}"].append(diff)
                 parts[f"true_{K}"].append(true)
             # body frame -> world at step 0 -> the travel frame (x along the travel): the network sees the
