@@ -16,6 +16,21 @@ and scored on shapes it never saw: the store's validation and test splits and an
     python benchmarks/studies/impact_pointnet.py train runs/impact/many.npz --k 6 \
         --runs 0:300 0:1000 0:all 1:all 0,1:all 0,1:all:scalars --device cuda --steps 10000 --batch 1024
 
+Fourteenth session: real irregular meshes (random_urdfs 160-999) in training, the frontier's wheel meshes
+scored apart (measured only), and half of each batch mirrored across its travel:
+
+    python -c "import sys; sys.path.insert(0, 'benchmarks'); from pathlib import Path; \
+        from external_meshes import collect_meshes, mesh_folder_store; o = ('points_method=hull_surface', 'num_points=256'); \
+        collect_meshes(Path('runs/urdf_train/meshes'), 840, 160, False); \
+        mesh_folder_store(Path('runs/urdf_train/meshes'), Path('runs/urdf_train/urdf_160_999_hull256.zarr'), 10, overrides=o); \
+        mesh_folder_store(Path('runs/frontier/wheel/meshes_60'), Path('runs/external_wheel/wheel_60_hull256.zarr'), 10, overrides=o)"
+    python benchmarks/studies/impact_pointnet.py export data/quickstart_hull_many.zarr data/clusters_hull.zarr \
+        runs/urdf_train/urdf_160_999_hull256.zarr --external runs/external_val_100/urdf_100_159_hull256.zarr \
+        runs/external_wheel/wheel_60_hull256.zarr --steps 0 --out runs/impact/urdf.npz
+    python benchmarks/studies/impact_pointnet.py train runs/impact/urdf.npz --k 0 --runs 0,1,2:all --mirror \
+        --device cuda --steps 10000 --batch 1024
+    python benchmarks/studies/impact_pointnet.py mirror-check data/clusters_hull.zarr   # the prior is equivariant
+
 Targets as impact_map.py: the truth's state at step K minus the prior's, in the frame of the step-0 travel
 (velocity along and across, spin w_z, displacement along and across, turn about the vertical); medians of
 |error| after the network's correction as a fraction of the prior's. Non-toppling pushes only.
@@ -33,9 +48,15 @@ import numpy as np
 import torch
 
 NAMES = ("v along", "v across", "w_z", "p along", "p across", "yaw")
+# A push mirrored across its travel (y -> -y in the travel frame) is a push of the mirrored shape: the
+# velocities (along, across, up) change sign as (+, -, +), the spins, an axial vector, as (-, +, -), the
+# state (v along, v across, w_z, p along, p across, yaw) as below; the scalars are v0, w0, the prior's state
+# and I_zz / m.
+MIRROR_STATE = np.array([1.0, -1.0, -1.0, 1.0, -1.0, -1.0], dtype=np.float32)
+MIRROR_SCALARS = np.concatenate([[1.0, -1.0, 1.0], [-1.0, 1.0, -1.0], MIRROR_STATE, [1.0]]).astype(np.float32)
 
 
-def export(stores: list[str], external: str | None, steps: list[int], out: Path) -> None:
+def export(stores: list[str], externals: list[str], steps: list[int], out: Path) -> None:
     from impact_map import in_travel_frame, travel_frame, travel_state
 
     from physdyn.data.store import load_store
@@ -47,7 +68,7 @@ def export(stores: list[str], external: str | None, steps: list[int], out: Path)
     per_k = [f"{k}_{K}" for K in steps for k in ("scalars", "diff", "true")]
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("frame", "group", "shape", "source", *per_k)}
     clouds, offset = [], 0
-    for source, (path, is_external) in enumerate([(s, False) for s in stores] + ([(external, True)] if external else [])):
+    for source, (path, is_external) in enumerate([(s, False) for s in stores] + [(s, True) for s in externals]):
         store = load_store(path)
         model = contact_prior_predictor(rate_hz=store.rate_hz).model
         lengths = store.lengths()
@@ -88,9 +109,47 @@ def export(stores: list[str], external: str | None, steps: list[int], out: Path)
         print(f"{path}: {len(sims)} non-toppling pushes", file=sys.stderr)
     out.parent.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(out, clouds=np.concatenate(clouds), names=np.array([Path(p).stem for p in stores]),
+                        external_names=np.array([Path(p).stem for p in externals]),
                         **{k: np.concatenate(v).astype(np.float32 if k not in ("group", "shape", "source") else np.int64)
                            for k, v in parts.items()})
     print(f"wrote {out}", file=sys.stderr)
+
+
+def mirror_check(store_path: str, count: int = 200) -> None:
+    """The contact prior's roll-out of mirrored pushes (shape, pose and velocities mirrored in the world,
+    y -> -y) against the mirrored roll-out, in the travel frame, at step 6 and at rest: what --mirror assumes."""
+    from impact_map import in_travel_frame, travel_frame, travel_state
+
+    from physdyn.data.store import load_store
+    from physdyn.data.windows import store_spin_inertia
+    from physdyn.eval.rollout import rollout
+    from physdyn.predict.predictor import contact_prior_predictor
+
+    store = load_store(store_path)
+    model = contact_prior_predictor(rate_hz=store.rate_hz).model
+    sims = np.flatnonzero(store.topple_step < 0)[:count]
+    first, lengths, rows = store.start[sims], store.lengths()[sims], np.arange(len(sims))
+    q0, p0 = store.orientation_xyzw[first], store.com_position[first]
+    v0, w0 = store.linear_velocity[first], store.angular_velocity[first]
+    inertia = store_spin_inertia(store, sims, q0)
+    flip = np.diag([1.0, -1.0, 1.0])
+    # the mirrored body: points y -> -y, orientation flip R flip (the quaternion's x and z change sign),
+    # the spin an axial vector (-flip w)
+    pushes = [(store.points[store.shape_id[sims]], q0, p0, v0, w0),
+              (store.points[store.shape_id[sims]] @ flip, q0 * np.array([-1.0, 1.0, -1.0, 1.0]), p0 @ flip,
+               v0 @ flip, -(w0 @ flip))]
+    states = []
+    for points, q, p, v, w in pushes:
+        o = rollout(model, points, q, p, v, w, int(lengths.max()) - 1, spin_inertia=inertia)
+        u = travel_frame(v)
+        states.append([travel_state(o.linear_velocity[rows, k], o.angular_velocity[rows, k], o.com_position[rows, k],
+                                    o.orientation_xyzw[rows, k], p, q, u)
+                       for k in (np.full(len(sims), 6), lengths - 1)]
+                      + [np.concatenate([in_travel_frame(v, u), in_travel_frame(w, u)], axis=1)])
+    for name, a, b, sign in zip(("state at step 6", "state at rest", "step-0 velocities and spins"), *states,
+                                (MIRROR_STATE, MIRROR_STATE, MIRROR_SCALARS[:6])):
+        print(f"{name}: largest |mirrored - mirror of the original| per column {np.abs(a * sign - b).max(0)}, "
+              f"largest |value| {np.abs(a).max(0).round(3)} ({len(sims)} pushes)")
 
 
 class ImpactNet(torch.nn.Module):
@@ -131,7 +190,7 @@ def wrap_yaw(residual: np.ndarray) -> np.ndarray:
 
 
 def train(data_path: Path, K: int, specs: list[str], steps: int, device: str, batch: int, out: Path | None,
-          minutes: float, width: int = 256, seed: int = 0) -> None:
+          minutes: float, width: int = 256, seed: int = 0, mirror: bool = False) -> None:
     torch.set_float32_matmul_precision("high")  # TF32 on a GPU: the study's figures need no more
     d = dict(np.load(data_path))
     raw_scalars, diff = d[f"scalars_{K}"], d[f"diff_{K}"]
@@ -151,7 +210,11 @@ def train(data_path: Path, K: int, specs: list[str], steps: int, device: str, ba
     # the scored groups: each store's validation and test splits (shapes never trained on), the external set
     groups = {f"{g} {names[k]}": np.flatnonzero((group == gi) & (source == k))
               for k in range(len(names)) for gi, g in ((1, "val"), (2, "test"))}
-    groups["external"] = np.flatnonzero(group == 3)
+    # every store after the training stores is an external set (older exports held one, unnamed)
+    external_names = [str(n) for n in d.get("external_names", ["external"])]
+    for k, name in enumerate(external_names):
+        label = "external" if len(external_names) == 1 and name == "external" else f"external {name}"
+        groups[label] = np.flatnonzero((group == 3) & (source == len(names) + k))
     # the prior's own errors, the scale every ratio below is of
     print(f"the contact prior's own error at K = {K or 'the last frame'} (medians):")
     for name, idx in groups.items():
@@ -178,6 +241,10 @@ def train(data_path: Path, K: int, specs: list[str], steps: int, device: str, ba
         y_mu, y_sd = diff[tr].mean(0), diff[tr].std(0) + 1e-9
         scalars = torch.tensor((raw_scalars - sc_mu) / sc_sd, device=dev)
         target = torch.tensor(((diff - y_mu) / y_sd)[:, cols], device=dev)
+        # the mirrored pushes' inputs and targets, standardised as the others (training only)
+        scalars_m = torch.tensor((raw_scalars * MIRROR_SCALARS - sc_mu) / sc_sd, device=dev)
+        target_m = torch.tensor(((diff * MIRROR_STATE - y_mu) / y_sd)[:, cols], device=dev)
+        flip_y = torch.tensor([1.0, -1.0, 1.0], device=dev)
 
         def predict(net, idx: np.ndarray) -> np.ndarray:
             """(len(idx), 6) corrections (zero in the columns not learned)."""
@@ -198,8 +265,15 @@ def train(data_path: Path, K: int, specs: list[str], steps: int, device: str, ba
         best, best_state, t0, done = np.inf, None, time.time(), steps
         for step in range(steps):
             idx = tr_t[torch.randint(len(tr_t), (batch,), device=dev)]
-            pred = net(cloud_of(idx) if use_cloud else None, scalars[idx])
-            loss = torch.nn.functional.smooth_l1_loss(pred, target[idx])
+            x, y = scalars[idx], target[idx]
+            cloud = cloud_of(idx) if use_cloud else None
+            if mirror:  # half the batch mirrored across its travel
+                m = torch.rand(batch, device=dev) < 0.5
+                x, y = torch.where(m[:, None], scalars_m[idx], x), torch.where(m[:, None], target_m[idx], y)
+                if cloud is not None:
+                    cloud = torch.where(m[:, None, None], cloud * flip_y, cloud)
+            pred = net(cloud, x)
+            loss = torch.nn.functional.smooth_l1_loss(pred, y)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -214,7 +288,7 @@ def train(data_path: Path, K: int, specs: list[str], steps: int, device: str, ba
                     done = step + 1
                     break
         net.load_state_dict(best_state)
-        row = {"run": spec, "k": K, "seed": seed, "train_stores": [names[k] for k in stores], "train_shapes": int(len(keep)),
+        row = {"run": spec, "k": K, "seed": seed, "mirror": mirror, "train_stores": [names[k] for k in stores], "train_shapes": int(len(keep)),
                "train_pushes": int(len(tr)), "cloud": use_cloud, "width": width, "batch": batch,
                "requested_steps": steps, "steps": done, "capped": done < steps,
                "seconds": round(time.time() - t0, 1), "ratios": {}}
@@ -247,7 +321,7 @@ def main() -> None:
     sub = ap.add_subparsers(dest="cmd", required=True)
     e = sub.add_parser("export", help="the inputs and targets of every non-toppling push, as one .npz")
     e.add_argument("stores", nargs="+")
-    e.add_argument("--external", help="a store of meshes new to every model, scored apart")
+    e.add_argument("--external", nargs="+", default=[], help="stores of meshes new to every model, each scored apart")
     e.add_argument("--steps", type=int, nargs="+", default=[6, 0], help="K (0: each push's last frame, at rest)")
     e.add_argument("--out", type=Path, required=True)
     t = sub.add_parser("train", help="train on growing numbers of training shapes; print the ratios")
@@ -263,12 +337,19 @@ def main() -> None:
     t.add_argument("--width", type=int, default=256, help="the PointNet's feature size and the head's width")
     t.add_argument("--seed", type=int, default=0, help="the network's initialisation and batches (not the shape subsets)")
     t.add_argument("--minutes", type=float, default=60.0, help="stop a run after this long (its best so far is scored)")
+    t.add_argument("--mirror", action="store_true", help="mirror half of each batch across its travel (shape and push)")
+    m = sub.add_parser("mirror-check", help="the contact prior mirrored as --mirror assumes (largest differences)")
+    m.add_argument("store")
     args = ap.parse_args()
-    if args.cmd == "export":
+    if args.cmd == "mirror-check":
+        torch.set_num_threads(1)
+        mirror_check(args.store)
+    elif args.cmd == "export":
         torch.set_num_threads(1)
         export(args.stores, args.external, args.steps, args.out)
     else:
-        train(args.data, args.k, args.runs, args.steps, args.device, args.batch, args.out, args.minutes, args.width, args.seed)
+        train(args.data, args.k, args.runs, args.steps, args.device, args.batch, args.out, args.minutes, args.width, args.seed,
+              args.mirror)
 
 
 if __name__ == "__main__":
