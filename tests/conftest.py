@@ -33,6 +33,16 @@ def tiny_store(tmp_path_factory) -> str:
     return str(out)
 
 
+@pytest.fixture(scope="session")
+def tiny_hull_store(tmp_path_factory) -> str:
+    """The tiny store's shapes and pushes with ``hull_surface`` clouds of 64 points (the hull's vertices first)."""
+    from physdyn.data.simulated_store import generate_dataset
+
+    out = tmp_path_factory.mktemp("stores") / "tiny_hull.zarr"
+    generate_dataset(tiny_data_config("points_method=hull_surface", "num_points=64"), str(out), workers=1, progress=False)
+    return str(out)
+
+
 def run_cli(*args: str, timeout: float = 300, check: bool = False) -> subprocess.CompletedProcess:
     """Run `physdyn ARGS` as a user would (a fresh process), capturing its output."""
     proc = subprocess.run([sys.executable, "-m", "physdyn.cli", *args], capture_output=True, text=True,

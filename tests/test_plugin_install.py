@@ -100,6 +100,7 @@ def test_installed_plugin_is_registered_as_a_plugin(installed, tmp_path):
     assert proc.stdout.strip().splitlines()[-2:] == [f"plugin {DIST_NAME}", "(2, 16)"]
 
 
+@pytest.mark.slow  # the plugin's own suite (plugins/physdyn-dgcnn/tests) checks the same listing in the default run
 def test_physdyn_components_lists_it(installed, tmp_path):
     proc = run_python(["-m", "physdyn.cli", "components"], tmp_path)
     assert proc.returncode == 0, proc.stderr

@@ -115,6 +115,12 @@ def predict_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, truth: 
     """Roll ``predictor`` out over ``sims`` for the horizon of ``truth`` (from ``gather_truth``)."""
     steps = truth["delta_position"].shape[1]
     rng = np.random.default_rng(seed)
+    classifier = getattr(predictor, "topple_classifier", None)
+    wants = getattr(classifier, "points_method", None)  # a PointNet classifier reads its own kind of cloud, whole
+    if wants is not None and (wants != store.points_method or store.points.shape[1] != classifier.num_points):
+        raise PhysdynError(f"the checkpoint's topple classifier reads {wants} clouds of {classifier.num_points} points "
+                           f"and {store.url} holds {store.points_method} ones of {store.points.shape[1]}; test it on a "
+                           f"store made with points_method: {wants}, num_points: {classifier.num_points}")
     parts = []
     for sl in _chunks(len(sims), batch_size):
         p0, q0 = truth["com_position"][sl, 0], truth["orientation_xyzw"][sl, 0]

@@ -29,7 +29,7 @@ from physdyn.models.optimizer import adam_with_schedule
 from physdyn.models.priors import RESIDUAL_MASKS, SHAPE_PRIORS, contact_changes, contact_geometry, prior_changes
 from physdyn.models.rotations import rotation_6d
 from physdyn.models.single_rollout import SingleRollout
-from physdyn.models.topple_classifier import ToppleClassifier
+from physdyn.models.topple_classifier import topple_classifier_from_dict
 from physdyn.registry import ENCODERS, HEADS, PREDICTORS
 
 
@@ -126,7 +126,7 @@ class DynamicsModel(LightningModule):
             if checkpoint.get("linear_channels"):
                 state.setdefault(f"linear_channels.{name}", torch.zeros_like(getattr(self, name)))
         if checkpoint.get("topple_classifier"):
-            self.topple_classifier = ToppleClassifier.from_dict(checkpoint["topple_classifier"])
+            self.topple_classifier = topple_classifier_from_dict(checkpoint["topple_classifier"])
         if checkpoint.get("linear_channels"):  # its weights are in the state dict, under linear_channels.
             self.attach_linear_channels(DynamicsModel(**checkpoint["linear_channels"]["hyper_parameters"]))
 

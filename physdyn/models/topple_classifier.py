@@ -224,6 +224,16 @@ class ToppleClassifier:
                    None if d.get("high") is None else np.asarray(d["high"]), physics)
 
 
+def topple_classifier_from_dict(d: dict[str, Any]) -> Any:
+    """The classifier a checkpoint holds: ``ToppleClassifier``, or ``PointNetToppleClassifier`` (kind "pointnet",
+    `fit-topple --pointnet`)."""
+    if d.get("kind") == "pointnet":
+        from physdyn.models.topple_pointnet import PointNetToppleClassifier  # torch networks: only where used
+
+        return PointNetToppleClassifier.from_dict(d)
+    return ToppleClassifier.from_dict(d)
+
+
 def logistic_regression(x: np.ndarray, y: np.ndarray, ridge: float = 1e-3, iterations: int = 50) -> tuple[np.ndarray, float]:
     """Newton's method on the mean log-loss + ridge/2 |w|^2 (bias not penalised); x standardised."""
     n, f = x.shape

@@ -229,8 +229,9 @@ class Predictor:
         points = np.stack([body.points_body(self.num_points, self.points_method) for body in bodies])
         classifier = getattr(self.model, "topple_classifier", None)
         dense = None if classifier is None else classifier.num_points  # the cloud its simulations read
+        method = getattr(classifier, "points_method", "surface")  # a PointNet classifier reads hull_surface
         topple_points = None if classifier is None and not sim_steps(self.model) else np.stack(
-            [body.points_body(dense or DEFAULT_NUM_POINTS) for body in bodies])
+            [body.points_body(dense or DEFAULT_NUM_POINTS, method) for body in bodies])
         results: list[dict[str, Any] | None] = [None] * R
         # Longest first, then one roll-out per chunk at the chunk's longest length: a roll-out is causal (each
         # step reads only earlier ones), so a shorter request's steps are exactly its own roll-out's and the

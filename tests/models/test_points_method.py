@@ -11,20 +11,12 @@ from physdyn.errors import ConfigError
 from physdyn.models.training import fit, load_experiment_config
 from physdyn.predict.body import prepare_body
 from physdyn.predict.predictor import load_predictor
-from tests.conftest import tiny_data_config
 from tests.models.conftest import QUICKSTART, shrunk_overrides
 
 
 @pytest.fixture(scope="module")
-def hull_store(tmp_path_factory) -> str:
-    from physdyn.data.simulated_store import generate_dataset
-
-    out = tmp_path_factory.mktemp("hull_store") / "hull.zarr"
-    fewer = [f"families.{name}.{key}=3" for name in ("primitives", "bottles", "mugs", "trashcans", "speakers")
-             for key in ("shapes", "sims_per_shape")]  # 45 pushes: enough to train 3 steps and predict
-    generate_dataset(tiny_data_config("points_method=hull_surface", "num_points=64", *fewer), str(out), workers=1,
-                     progress=False)
-    return str(out)
+def hull_store(tiny_hull_store) -> str:
+    return tiny_hull_store  # 150 pushes of hull_surface clouds, shared with the topple classifier's tests
 
 
 def test_the_store_holds_hull_vertices_and_the_model_predicts_with_them(hull_store, tmp_path):

@@ -1,0 +1,278 @@
+"""Will it topple? Small PointNets over the step-0 cloud, no simulator (``physdyn fit-topple --pointnet``).
+
+Toppling is nearly decided at step 0, and it needs no precision in the physics: PyBullet with its friction or
+its push 10 % off still classifies 0.97-1.00 of the frontier's pushes (docs/ablations.md, "How exactly the
+physics must be known"). The logistic regression of ``topple_classifier.py`` reads hand-made features and
+stops near 0.90 on meshes it never saw; a network that reads the cloud itself reaches 0.95-0.96 once it is
+trained on thousands of shapes ("Toppling from the cloud alone").
+
+Each network sees the cloud (``hull_surface`` points, body frame turned to its step-0 orientation) in the
+frame of the push's travel (x along the step-0 horizontal velocity, z up), each point's height above the
+lowest one, and seven scalars: the step-0 velocity and spin in that frame and I_zz / m about the vertical.
+A PointNet (4 -> 64 -> 128 -> width per point, max-pooled) and a head of two hidden layers give the logit;
+the probability is the mean of the networks' (an ensemble of seeds). Per step, the probability of having
+toppled by step t is P(topples) x F(t), as ``ToppleClassifier``'s.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+import torch
+
+from physdyn.geometry.rotations import quat_to_matrix
+
+KIND = "pointnet"
+POINTS_METHOD = "hull_surface"  # the cloud it reads: the hull's vertices keep the edges a body tips over
+SCALARS = 7  # step-0 velocity (3) and spin (3) in the travel frame, I_zz / m
+# Mirrored across its travel (y -> -y), a push is a push of the mirrored shape with the same outcome: the
+# velocity (along, across, up) changes sign as (+, -, +), the spin, an axial vector, as (-, +, -).
+MIRROR_SCALARS = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0, 1.0], dtype=np.float32)
+INERTIA_SHAPE_FACTOR = 0.8  # I_zz / m from a bare cloud: 0.8 x its mean squared horizontal radius (the contact prior's)
+
+
+class ToppleNet(torch.nn.Module):
+    """One network: PointNet over (x, y, z, height above the lowest point) in decimetres, joined with the
+    standardised scalars; one logit."""
+
+    def __init__(self, width: int = 256, scalars: int = SCALARS):
+        super().__init__()
+        self.points = torch.nn.Sequential(torch.nn.Linear(4, 64), torch.nn.ReLU(), torch.nn.Linear(64, 128),
+                                          torch.nn.ReLU(), torch.nn.Linear(128, width))
+        self.head = torch.nn.Sequential(torch.nn.Linear(width + scalars, width), torch.nn.ReLU(),
+                                        torch.nn.Linear(width, width), torch.nn.ReLU(), torch.nn.Linear(width, 1))
+
+    def forward(self, cloud: torch.Tensor, scalars: torch.Tensor) -> torch.Tensor:
+        """cloud (B, N, 3) in the travel frame (m), scalars (B, 7) standardised -> (B,) logits."""
+        height = cloud[..., 2:3] - cloud[..., 2:3].amin(dim=1, keepdim=True)
+        feature = self.points(torch.cat([cloud * 10.0, height * 10.0], dim=-1)).amax(dim=1)
+        return self.head(torch.cat([feature, scalars], dim=-1))[:, 0]
+
+
+def travel_turn(linear_velocity: np.ndarray) -> np.ndarray:
+    """(B, 3, 3) world -> travel frame: x along the step-0 horizontal velocity (world x where there is
+    none), y across it, z up."""
+    d = np.asarray(linear_velocity, dtype=np.float64)[:, :2]
+    n = np.linalg.norm(d, axis=1, keepdims=True)
+    u = np.where(n > 1e-9, d / np.maximum(n, 1e-12), np.array([1.0, 0.0]))
+    turn = np.zeros((len(d), 3, 3))
+    turn[:, 0, :2], turn[:, 1, 0], turn[:, 1, 1], turn[:, 2, 2] = u, -u[:, 1], u[:, 0], 1.0
+    return turn
+
+
+def travel_scalars(linear_velocity: np.ndarray, angular_velocity: np.ndarray, spin_inertia: np.ndarray,
+                   turn: np.ndarray) -> np.ndarray:
+    """(B, 7) raw scalars: velocity and spin in the travel frame ``turn`` (B, 3, 3), I_zz / m."""
+    v = np.einsum("bij,bj->bi", turn, np.asarray(linear_velocity, dtype=np.float64))
+    w = np.einsum("bij,bj->bi", turn, np.asarray(angular_velocity, dtype=np.float64))
+    return np.concatenate([v, w, np.asarray(spin_inertia, dtype=np.float64).reshape(-1, 1)], axis=1)
+
+
+def cloud_spin_inertia(points_world: np.ndarray) -> np.ndarray:
+    """(B,) I_zz / m estimated from a bare cloud (B, N, 3) centred at the centre of mass."""
+    return INERTIA_SHAPE_FACTOR * (np.asarray(points_world)[..., :2] ** 2).sum(-1).mean(-1)
+
+
+@dataclass
+class PointNetToppleClassifier:
+    """An ensemble of ``ToppleNet`` state dicts with the scalars' standardisation; ``timing`` (S,) is F(t)."""
+
+    networks: list[dict[str, torch.Tensor]]
+    scalars_mean: np.ndarray
+    scalars_std: np.ndarray
+    timing: np.ndarray
+    rate_hz: float
+    width: int = 256
+    num_points: int = 256
+    points_method: str = POINTS_METHOD
+    physics: bool = False  # it simulates nothing (Predictor.without_simulator keeps it)
+    _modules: list[ToppleNet] = field(default_factory=list, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        self._modules = []
+        for state in self.networks:
+            net = ToppleNet(self.width)
+            net.load_state_dict(state)
+            self._modules.append(net.eval())
+
+    def probability(self, points_world: np.ndarray, linear_velocity: np.ndarray, angular_velocity: np.ndarray,
+                    spin_inertia: np.ndarray) -> np.ndarray:
+        """(B,) probability that each push topples: clouds (B, N, 3) turned to step 0, centred at the centre
+        of mass; step-0 velocities (B, 3); I_zz / m (B,)."""
+        turn = travel_turn(linear_velocity)
+        cloud = torch.tensor(np.einsum("bij,bnj->bni", turn, np.asarray(points_world, dtype=np.float64)),
+                             dtype=torch.float32)
+        raw = travel_scalars(linear_velocity, angular_velocity, spin_inertia, turn)
+        scalars = torch.tensor((raw - self.scalars_mean) / self.scalars_std, dtype=torch.float32)
+        with torch.no_grad():
+            return np.mean([torch.sigmoid(net(cloud, scalars)).numpy() for net in self._modules], axis=0).astype(np.float64)
+
+    def per_step(self, probability: np.ndarray, steps: int) -> np.ndarray:
+        """(B,) -> (B, steps + 1): the probability of having toppled by step t (0 at step 0)."""
+        share = self.timing[np.minimum(np.arange(steps + 1), len(self.timing) - 1)]
+        return np.asarray(probability)[:, None] * share[None, :]
+
+    def predict(self, points_world: np.ndarray, linear_velocity: np.ndarray, angular_velocity: np.ndarray,
+                steps: int, inertia: np.ndarray | None = None) -> np.ndarray:
+        """(B, steps + 1) per-step probabilities; ``inertia`` (B, 3, 3): the bodies' I / m in world axes
+        (without it, I_zz / m is estimated from the cloud)."""
+        spin = cloud_spin_inertia(points_world) if inertia is None else np.asarray(inertia)[:, 2, 2]
+        return self.per_step(self.probability(points_world, linear_velocity, angular_velocity, spin), steps)
+
+    def to_dict(self) -> dict[str, Any]:
+        # tensors, lists and numbers only: checkpoints are read without running code (docs/security.md)
+        return {"kind": KIND, "networks": [{k: t.detach().cpu().clone() for k, t in s.items()} for s in self.networks],
+                "scalars_mean": self.scalars_mean.tolist(), "scalars_std": self.scalars_std.tolist(),
+                "timing": self.timing.tolist(), "rate_hz": float(self.rate_hz), "width": int(self.width),
+                "num_points": int(self.num_points), "points_method": self.points_method}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "PointNetToppleClassifier":
+        return cls([dict(s) for s in d["networks"]], np.asarray(d["scalars_mean"]), np.asarray(d["scalars_std"]),
+                   np.asarray(d["timing"]), float(d["rate_hz"]), int(d["width"]), int(d["num_points"]),
+                   str(d.get("points_method", POINTS_METHOD)))
+
+
+@dataclass
+class TrainingSet:
+    """Every push of some stores as the networks read it: clouds (S, N, 3) body frame; per push its shape
+    (P,) into clouds, step-0 rotation into the travel frame (P, 3, 3), raw scalars (P, 7), label (P,) 1 if
+    it topples, split (P,) 0 train, 1 validation, 2 test."""
+
+    clouds: np.ndarray
+    shape: np.ndarray
+    turn: np.ndarray
+    scalars: np.ndarray
+    label: np.ndarray
+    split: np.ndarray
+
+
+def train_network(data: TrainingSet, train: np.ndarray, val: np.ndarray, steps: int = 10000, batch: int = 1024,
+                  width: int = 256, seed: int = 0, mirror: bool = True, device: str = "cpu",
+                  minutes: float | None = None, progress: Callable[[int, float], None] | None = None) -> dict[str, Any]:
+    """One network on the pushes ``train`` (indices into ``data``), its checkpoint the best of 20 checks of
+    accuracy on ``val``: AdamW (lr 1e-3, weight decay 1e-4) on a one-cycle schedule, binary cross-entropy,
+    half of each batch mirrored across its travel (``mirror``). ``minutes``: stop then, keeping the best so
+    far. Returns {"state_dict", "scalars_mean", "scalars_std", "val_accuracy", "steps"}."""
+    dev = torch.device(device)
+    torch.manual_seed(seed)
+    mu, sd = data.scalars[train].mean(0), data.scalars[train].std(0) + 1e-9
+    clouds = torch.tensor(data.clouds, dtype=torch.float32, device=dev)
+    turn = torch.tensor(data.turn, dtype=torch.float32, device=dev)
+    shape = torch.tensor(data.shape, device=dev)
+    label = torch.tensor(data.label, dtype=torch.float32, device=dev)
+    scalars = torch.tensor((data.scalars - mu) / sd, dtype=torch.float32, device=dev)
+    scalars_m = torch.tensor((data.scalars * MIRROR_SCALARS - mu) / sd, dtype=torch.float32, device=dev)
+    flip_y = torch.tensor([1.0, -1.0, 1.0], device=dev)
+
+    def cloud_of(idx: torch.Tensor) -> torch.Tensor:
+        return torch.einsum("bij,bnj->bni", turn[idx], clouds[shape[idx]])
+
+    def accuracy(net: ToppleNet, idx: np.ndarray) -> float:
+        net.eval()
+        with torch.no_grad():
+            logits = torch.cat([net(cloud_of(part), scalars[part]) for part in torch.tensor(idx, device=dev).split(8192)])
+        net.train()
+        return float(((logits > 0).float() == label[torch.tensor(idx, device=dev)]).float().mean())
+
+    net = ToppleNet(width).to(dev)
+    opt = torch.optim.AdamW(net.parameters(), lr=1e-3, weight_decay=1e-4)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=1e-3, total_steps=steps, pct_start=max(0.05, 2.0 / steps))
+    train_t = torch.tensor(train, device=dev)
+    best, best_state, started, done = -1.0, None, time.time(), steps
+    for step in range(steps):
+        idx = train_t[torch.randint(len(train_t), (batch,), device=dev)]
+        x, cloud = scalars[idx], cloud_of(idx)
+        if mirror:
+            m = torch.rand(batch, device=dev) < 0.5
+            x = torch.where(m[:, None], scalars_m[idx], x)
+            cloud = torch.where(m[:, None, None], cloud * flip_y, cloud)
+        loss = torch.nn.functional.binary_cross_entropy_with_logits(net(cloud, x), label[idx])
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        sched.step()
+        if (step + 1) % max(1, steps // 20) == 0 or step + 1 == steps:
+            acc = accuracy(net, val)
+            if acc > best:
+                best, best_state = acc, {k: t.detach().cpu().clone() for k, t in net.state_dict().items()}
+            if progress is not None:
+                progress(step + 1, acc)
+            if minutes is not None and time.time() - started > 60 * minutes:
+                done = step + 1
+                break
+    return {"state_dict": best_state, "scalars_mean": mu, "scalars_std": sd, "val_accuracy": best, "steps": done}
+
+
+def store_training_set(stores: list[Any]) -> TrainingSet:
+    """``TrainingSet`` of every push of ``stores`` (each store's own split; their clouds must be of one size)."""
+    from physdyn.data.windows import store_spin_inertia
+
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("clouds", "shape", "turn", "scalars", "label", "split")}
+    offset = 0
+    for store in stores:
+        sims = np.arange(store.num_sims)
+        first = store.start[sims]
+        q0, v0, w0 = store.orientation_xyzw[first], store.linear_velocity[first], store.angular_velocity[first]
+        turn = travel_turn(v0)
+        parts["clouds"].append(np.asarray(store.points, dtype=np.float32))
+        parts["shape"].append(store.shape_id[sims].astype(np.int64) + offset)
+        parts["turn"].append(turn @ quat_to_matrix(q0))
+        parts["scalars"].append(travel_scalars(v0, w0, store_spin_inertia(store, sims, q0), turn))
+        parts["label"].append((store.topple_step[sims] >= 0).astype(np.float32))
+        parts["split"].append(np.asarray(store.split[sims], dtype=np.int64))
+        offset += store.num_shapes
+    return TrainingSet(**{k: np.concatenate(v) for k, v in parts.items()})
+
+
+def fit_pointnet_topple(stores: list[Any], seeds: tuple[int, ...] = (0, 1, 2), steps: int = 10000, batch: int = 1024,
+                        width: int = 256, device: str = "cpu", minutes: float | None = None,
+                        progress: Callable[[int, int, float], None] | None = None) -> tuple[PointNetToppleClassifier, dict[str, Any]]:
+    """One network per seed on the stores' training splits, each chosen on their validation splits, as one
+    classifier. Returns it and a report (validation accuracy of each network and of the ensemble, counts)."""
+    data = store_training_set(stores)
+    train, val = np.flatnonzero(data.split == 0), np.flatnonzero(data.split == 1)
+    runs = [train_network(data, train, val, steps, batch, width, seed, True, device, minutes,
+                          None if progress is None else (lambda step, acc, s=seed: progress(s, step, acc)))
+            for seed in seeds]
+    # one standardisation for the ensemble: every run's is the training split's, the same numbers
+    classifier = PointNetToppleClassifier([r["state_dict"] for r in runs], runs[0]["scalars_mean"],
+                                          runs[0]["scalars_std"], topple_timing(stores), float(stores[0].rate_hz), width,
+                                          int(data.clouds.shape[1]))
+    first = stores_first_frames(stores, split=1)  # the validation pushes, in the order of ``val``
+    p = classifier.probability(first["points"], first["v0"], first["w0"], first["spin"])
+    report = {"val_accuracy": float(np.mean((p > 0.5) == (data.label[val] > 0.5))),
+              "network_val_accuracy": [r["val_accuracy"] for r in runs], "steps": [r["steps"] for r in runs],
+              "val_majority": float(max(data.label[val].mean(), 1 - data.label[val].mean())),
+              "train_sequences": int(len(train)), "val_sequences": int(len(val))}
+    return classifier, report
+
+
+def topple_timing(stores: list[Any]) -> np.ndarray:
+    """F(t), t = 0, 1, ...: the share of the stores' toppling training pushes that have toppled by step t."""
+    toppled = np.concatenate([s.topple_step[(s.topple_step >= 0) & (s.split == 0)] for s in stores])
+    if not len(toppled):
+        return np.array([0.0, 1.0])
+    timing = np.array([np.mean(toppled <= t) for t in range(int(toppled.max()) + 2)])
+    timing[0] = 0.0  # nothing has toppled at the push
+    return timing
+
+
+def stores_first_frames(stores: list[Any], split: int | None = None) -> dict[str, np.ndarray]:
+    """The pushes' clouds turned to their step-0 orientation (P, N, 3), step-0 velocities, I_zz / m: every
+    push of the stores in order, or those of one ``split``."""
+    from physdyn.data.windows import store_spin_inertia, world_oriented_points
+
+    out: dict[str, list[np.ndarray]] = {"points": [], "v0": [], "w0": [], "spin": []}
+    for store in stores:
+        sims = np.arange(store.num_sims) if split is None else np.flatnonzero(store.split == split)
+        first = store.start[sims]
+        q0 = store.orientation_xyzw[first]
+        out["points"].append(world_oriented_points(store.points[store.shape_id[sims]], q0))
+        out["v0"].append(store.linear_velocity[first])
+        out["w0"].append(store.angular_velocity[first])
+        out["spin"].append(store_spin_inertia(store, sims, q0))
+    return {k: np.concatenate(v) for k, v in out.items()}

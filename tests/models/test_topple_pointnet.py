@@ -1,0 +1,127 @@
+"""The PointNet topple classifier (`fit-topple --pointnet`): it learns from a real store, reads its inputs in
+the travel frame as the mirror assumes, survives a checkpoint file read without running code, and predicts
+toppling with no simulator anywhere in the prediction."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from physdyn.data.store import load_store
+from physdyn.geometry.rotations import quat_to_matrix
+from physdyn.models.topple_pointnet import (MIRROR_SCALARS, PointNetToppleClassifier, fit_pointnet_topple,
+                                            store_training_set, stores_first_frames, travel_scalars, travel_turn)
+
+
+@pytest.fixture(scope="module")
+def hull_store(tiny_hull_store) -> str:
+    """A real store of hull_surface clouds: 25 shapes over the five categories, 150 pushes, 64 points."""
+    return tiny_hull_store
+
+
+@pytest.fixture(scope="module")
+def fitted(hull_store):
+    torch.set_num_threads(1)
+    store = load_store(hull_store)
+    return store, *fit_pointnet_topple([store], seeds=(0, 1), steps=300, batch=32, width=16)
+
+
+def test_it_learns_whether_a_push_topples_from_the_cloud(fitted):
+    store, classifier, report = fitted
+    train = np.flatnonzero(store.split == 0)
+    first = stores_first_frames([store], split=0)
+    truth = store.topple_step[train] >= 0
+    accuracy = np.mean((classifier.probability(first["points"], first["v0"], first["w0"], first["spin"]) > 0.5) == truth)
+    majority = max(truth.mean(), 1 - truth.mean())
+    assert accuracy > majority + 0.08, (accuracy, majority)
+    assert len(classifier.networks) == 2 and report["train_sequences"] == len(train)
+    assert 0.0 <= report["val_accuracy"] <= 1.0 and len(report["network_val_accuracy"]) == 2
+    # per step: nothing at the push, then the training split's topple times up to the push's probability
+    steps = classifier.per_step(np.array([0.3, 0.8]), 40)
+    assert (steps[:, 0] == 0).all() and (np.diff(steps, axis=1) >= 0).all()
+    np.testing.assert_allclose(steps[:, -1], [0.3, 0.8])
+
+
+def test_the_inputs_are_in_the_travel_frame_and_mirror_as_the_training_assumes(hull_store):
+    rng = np.random.default_rng(0)
+    v, w = rng.normal(size=(50, 3)), rng.normal(size=(50, 3))
+    turn = travel_turn(v)
+    scalars = travel_scalars(v, w, np.ones(50), turn)
+    # along the travel: the whole horizontal speed, nothing across
+    np.testing.assert_allclose(scalars[:, 0], np.hypot(v[:, 0], v[:, 1]))
+    np.testing.assert_allclose(scalars[:, 1], 0.0, atol=1e-12)
+    # the push mirrored in the world (y -> -y; the spin, an axial vector, -flip w) has the mirrored scalars
+    flip = np.diag([1.0, -1.0, 1.0])
+    mirrored = travel_scalars(v @ flip, -(w @ flip), np.ones(50), travel_turn(v @ flip))
+    np.testing.assert_allclose(mirrored, scalars * MIRROR_SCALARS, atol=1e-12)
+    # every push of a store: its cloud in the travel frame is the turned body cloud
+    store = load_store(hull_store)
+    data = store_training_set([store])
+    first = store.start[7]
+    expected = travel_turn(store.linear_velocity[first][None])[0] @ quat_to_matrix(store.orientation_xyzw[first])
+    np.testing.assert_allclose(data.turn[7], expected, atol=1e-12)
+    assert data.clouds.shape == (store.num_shapes, 64, 3) and data.label[7] == float(store.topple_step[7] >= 0)
+
+
+def test_a_checkpoint_keeps_it_and_is_read_without_running_code(fitted, tmp_path):
+    from physdyn.models.checkpoint_file import read_torch_file, write_torch_file
+    from physdyn.models.topple_classifier import topple_classifier_from_dict
+
+    store, classifier, _ = fitted
+    write_torch_file({"topple_classifier": classifier.to_dict()}, tmp_path / "c.ckpt")
+    back = topple_classifier_from_dict(read_torch_file(tmp_path / "c.ckpt", "a checkpoint")["topple_classifier"])
+    assert isinstance(back, PointNetToppleClassifier) and back.points_method == "hull_surface" and not back.physics
+    first = stores_first_frames([store], split=1)
+    np.testing.assert_array_equal(back.probability(first["points"], first["v0"], first["w0"], first["spin"]),
+                                  classifier.probability(first["points"], first["v0"], first["w0"], first["spin"]))
+
+
+def test_a_model_with_it_predicts_toppling_with_no_simulator(fitted, tiny_store, tmp_path, monkeypatch, capsys):
+    from physdyn.cli import main
+    from physdyn.cli.fit_topple import write_with_classifier
+    from physdyn.geometry.mass import vertical_inertia
+    from physdyn.models.export import export_checkpoint
+    from physdyn.predict.body import prepare_body
+    from physdyn.predict.predictor import BUNDLED_CHECKPOINT, load_predictor
+
+    _, classifier, _ = fitted
+    # the bundled model's networks alone (no simulated start) with the PointNets instead of its roll-out classifier
+    networks = export_checkpoint(BUNDLED_CHECKPOINT, tmp_path / "networks.ckpt", settings=["model.sim_seconds=0"])
+    write_with_classifier(networks, classifier, tmp_path / "pointnet.ckpt")
+    predictor = load_predictor(str(tmp_path / "pointnet.ckpt"))
+    assert type(predictor.model.topple_classifier).__name__ == "PointNetToppleClassifier"
+    box = trimesh.creation.box((0.06, 0.06, 0.3))  # tall and narrow: pushed low and hard it may topple
+    predictor.predict(box.copy(), [0.5, 0.0, 0.0], [0.0, 0.0, 0.0], seconds=0.2)  # imports done, mesh prepared
+    # PyBullet refuses to run from here on: any simulation in the prediction would fail, as the simulator
+    # beside the model shows
+    import pybullet
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("PyBullet ran inside the prediction")
+
+    for name in ("connect", "stepSimulation"):
+        monkeypatch.setattr(pybullet, name, refuse)
+    with pytest.raises(AssertionError, match="PyBullet ran"):
+        predictor.predict(box, [1.0, 0.0, 0.0], [0.0, 0.0, 0.0], seconds=0.5, compare_sim=True)
+    results = predictor.predict_many([box, box], [[1.5, 0.0, 0.0], [0.3, 0.0, 0.0]], [[0.0, 6.0, 0.0], [0.0, 0.0, 1.0]],
+                                     seconds=1.0)
+    for result in results:
+        p = result["topple_probability"]
+        assert p is not None and p[0] == 0 and (np.diff(p) >= 0).all() and np.isfinite(result["com_position"]).all()
+    # the probabilities are the classifier's, from the box's own hull_surface cloud and mass properties
+    body = prepare_body(box)  # resting as given: step 0's orientation is the mesh frame
+    points = body.points_body(classifier.num_points, "hull_surface")[None]
+    spin = np.atleast_1d(vertical_inertia(body.spec.inertia_diag, body.spec.principal_axes, body.spec.mass,
+                                          np.array([0.0, 0.0, 0.0, 1.0])))
+    expected = classifier.probability(points, np.array([[1.5, 0.0, 0.0]]), np.array([[0.0, 6.0, 0.0]]), spin)
+    assert results[0]["topple_probability"][-1] == pytest.approx(expected[0] * classifier.timing[-1], rel=1e-5)
+    # tested on a store of other clouds than it reads: one line naming both, nothing written
+    monkeypatch.undo()
+    capsys.readouterr()
+    assert main(["test", "--checkpoint", str(tmp_path / "pointnet.ckpt"), "--data", tiny_store, "--out",
+                 str(tmp_path / "report")]) == 2
+    err = capsys.readouterr().err
+    assert "reads hull_surface clouds of 64 points" in err and "holds surface ones" in err
+    assert not (tmp_path / "report").exists()
