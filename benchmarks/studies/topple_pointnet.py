@@ -162,9 +162,11 @@ def saved_classifier(weights: list[Path], stores: list[str] = ()) -> PointNetTop
     from physdyn.models.topple_pointnet import topple_timing
 
     saved = [torch.load(path, weights_only=True) for path in weights]
-    timing = topple_timing([load_store(s) for s in stores]) if stores else np.array([0.0, 1.0])
+    loaded = [load_store(s) for s in stores]
+    timing = topple_timing(loaded) if loaded else np.array([0.0, 1.0])
+    rate = float(loaded[0].rate_hz) if loaded else 15.0  # the conventions' rate where no store is given
     return PointNetToppleClassifier([s["state_dict"] for s in saved], np.asarray(saved[0]["scalars_mean"]),
-                                    np.asarray(saved[0]["scalars_std"]), timing, 15.0, int(saved[0]["width"]))
+                                    np.asarray(saved[0]["scalars_std"]), timing, rate, int(saved[0]["width"]))
 
 
 def embed(checkpoint: str, weights: list[Path], stores: list[str], out: Path) -> None:

@@ -69,8 +69,11 @@ def run(args: argparse.Namespace) -> int:
         raise PhysdynError("--pointnet reads the stores' own clouds and simulates nothing; drop --physics and --num-points")
     if not args.pointnet and args.data and len(args.data) > 1:
         raise PhysdynError("the logistic regression fits on one store; pass --data once (or --pointnet for several)")
-    if args.pointnet and (min(args.seeds) < 0 or args.steps < 1 or args.batch < 1):
-        raise PhysdynError(f"--seeds must be >= 0 and --steps, --batch at least 1; got {args.seeds}, {args.steps}, {args.batch}")
+    if args.pointnet and (min(args.seeds) < 0 or args.steps < 20 or args.batch < 1):
+        raise PhysdynError(f"--seeds must be >= 0, --steps at least 20 (the networks are checked 20 times) and --batch "
+                           f"at least 1; got {args.seeds}, {args.steps}, {args.batch}")
+    if args.pointnet:
+        _check_device(args.device)
     model, data = checkpoint_and_store(args.checkpoint, args.data[0] if args.data else None)
     stores = [load_store(d) for d in (args.data or [data])]
     for path, store in zip(args.data or [data], stores):
@@ -92,9 +95,22 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _fit_pointnet(args: argparse.Namespace, stores: list, out: Path) -> int:
+def _check_device(name: str) -> None:
+    """A one-line error for a --device torch cannot train on here."""
     import torch
 
+    try:
+        device = torch.device(name)
+    except RuntimeError:
+        device = None
+    if device is None or device.type not in ("cpu", "cuda"):
+        raise PhysdynError(f"--device {name}: use cpu, cuda or cuda:N")
+    if device.type == "cuda" and (device.index or 0) >= torch.cuda.device_count():
+        raise PhysdynError(f"--device {name}: torch sees {torch.cuda.device_count()} CUDA device(s) here; "
+                           "use --device cpu or one that exists")
+
+
+def _fit_pointnet(args: argparse.Namespace, stores: list, out: Path) -> int:
     from physdyn.models.topple_pointnet import POINTS_METHOD, fit_pointnet_topple
 
     names = args.data or ["the model's store"]
@@ -106,8 +122,6 @@ def _fit_pointnet(args: argparse.Namespace, stores: list, out: Path) -> int:
             raise PhysdynError(f"--data {name} has no training or no validation split; --pointnet needs both")
     if len({s.points.shape[1] for s in stores}) > 1:
         raise PhysdynError(f"--data stores hold clouds of {sorted({s.points.shape[1] for s in stores})} points; use one size")
-    if args.device.startswith("cuda") and not torch.cuda.is_available():
-        raise PhysdynError(f"--device {args.device}: torch sees no CUDA device here; use --device cpu")
     pushes = sum(int((s.split == 0).sum()) for s in stores)
     print(f"training {len(args.seeds)} networks on {pushes} pushes of {len(stores)} store(s), {args.steps} steps each "
           f"on {args.device}")

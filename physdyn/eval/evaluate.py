@@ -121,6 +121,11 @@ def predict_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, truth: 
         raise PhysdynError(f"the checkpoint's topple classifier reads {wants} clouds of {classifier.num_points} points "
                            f"and {store.url} holds {store.points_method} ones of {store.points.shape[1]}; test it on a "
                            f"store made with points_method: {wants}, num_points: {classifier.num_points}")
+    model_reads = str(getattr(predictor, "data_info", {}).get("points_method") or "surface")
+    if wants is not None and model_reads != wants:  # one store cannot feed both: the model would get the wrong kind
+        raise PhysdynError(f"the model reads {model_reads} clouds and its topple classifier {wants} ones; a store holds "
+                           "one kind, so `physdyn test` cannot feed both: measure it through `predict` "
+                           f"(benchmarks/frontier.py), or give the classifier a model trained on {wants} clouds")
     parts = []
     for sl in _chunks(len(sims), batch_size):
         p0, q0 = truth["com_position"][sl, 0], truth["orientation_xyzw"][sl, 0]

@@ -21,7 +21,8 @@ from physdyn.files import write_bytes_atomic
 
 # The types a file may hold beyond torch's weights-only set (tensors, dicts, lists, tuples, strings, numbers,
 # OrderedDict, torch dtypes and devices). None: physdyn writes hyper-parameters as plain dicts
-# (DynamicsModel.save_hyperparameters), the topple classifier as lists (ToppleClassifier.to_dict), and
+# (DynamicsModel.save_hyperparameters), the topple classifier as lists (ToppleClassifier.to_dict) or lists and
+# tensors (PointNetToppleClassifier.to_dict), and
 # Lightning's loop, optimiser, scheduler and callback states are dicts of numbers, strings and tensors; every
 # checkpoint the bundled model ever shipped as holds nothing else. Anything outside this list, a function
 # such as os.system or a class whose unpickling would call one, is refused before it is built.

@@ -31,6 +31,7 @@ SCALARS = 7  # step-0 velocity (3) and spin (3) in the travel frame, I_zz / m
 # Mirrored across its travel (y -> -y), a push is a push of the mirrored shape with the same outcome: the
 # velocity (along, across, up) changes sign as (+, -, +), the spin, an axial vector, as (-, +, -).
 MIRROR_SCALARS = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0, 1.0], dtype=np.float32)
+MIN_STEPS = 20  # training steps: the best of 20 validation checks is kept
 INERTIA_SHAPE_FACTOR = 0.8  # I_zz / m from a bare cloud: 0.8 x its mean squared horizontal radius (the contact prior's)
 
 
@@ -157,6 +158,8 @@ def train_network(data: TrainingSet, train: np.ndarray, val: np.ndarray, steps: 
     accuracy on ``val``: AdamW (lr 1e-3, weight decay 1e-4) on a one-cycle schedule, binary cross-entropy,
     half of each batch mirrored across its travel (``mirror``). ``minutes``: stop then, keeping the best so
     far. Returns {"state_dict", "scalars_mean", "scalars_std", "val_accuracy", "steps"}."""
+    if steps < MIN_STEPS:
+        raise ValueError(f"steps must be at least {MIN_STEPS} (the network is checked 20 times), got {steps}")
     dev = torch.device(device)
     torch.manual_seed(seed)
     mu, sd = data.scalars[train].mean(0), data.scalars[train].std(0) + 1e-9

@@ -37,7 +37,11 @@ def test_it_learns_whether_a_push_topples_from_the_cloud(fitted):
     majority = max(truth.mean(), 1 - truth.mean())
     assert accuracy > majority + 0.08, (accuracy, majority)
     assert len(classifier.networks) == 2 and report["train_sequences"] == len(train)
-    assert 0.0 <= report["val_accuracy"] <= 1.0 and len(report["network_val_accuracy"]) == 2
+    # the report's validation accuracy is the ensemble's own on the validation pushes
+    val = np.flatnonzero(store.split == 1)
+    held = stores_first_frames([store], split=1)
+    decided = classifier.probability(held["points"], held["v0"], held["w0"], held["spin"]) > 0.5
+    assert report["val_accuracy"] == pytest.approx(np.mean(decided == (store.topple_step[val] >= 0)))
     # per step: nothing at the push, then the training split's topple times up to the push's probability
     steps = classifier.per_step(np.array([0.3, 0.8]), 40)
     assert (steps[:, 0] == 0).all() and (np.diff(steps, axis=1) >= 0).all()
@@ -52,10 +56,15 @@ def test_the_inputs_are_in_the_travel_frame_and_mirror_as_the_training_assumes(h
     # along the travel: the whole horizontal speed, nothing across
     np.testing.assert_allclose(scalars[:, 0], np.hypot(v[:, 0], v[:, 1]))
     np.testing.assert_allclose(scalars[:, 1], 0.0, atol=1e-12)
-    # the push mirrored in the world (y -> -y; the spin, an axial vector, -flip w) has the mirrored scalars
+    # the push mirrored in the world (y -> -y; the spin, an axial vector, -flip w) has the mirrored scalars,
+    # and its mirrored cloud, seen in its own travel frame, is the cloud with y -> -y: what training feeds
     flip = np.diag([1.0, -1.0, 1.0])
     mirrored = travel_scalars(v @ flip, -(w @ flip), np.ones(50), travel_turn(v @ flip))
     np.testing.assert_allclose(mirrored, scalars * MIRROR_SCALARS, atol=1e-12)
+    cloud = rng.normal(size=(50, 16, 3))
+    seen = np.einsum("bij,bnj->bni", turn, cloud)
+    seen_mirrored = np.einsum("bij,bnj->bni", travel_turn(v @ flip), cloud @ flip)
+    np.testing.assert_allclose(seen_mirrored, seen @ flip, atol=1e-12)
     # every push of a store: its cloud in the travel frame is the turned body cloud
     store = load_store(hull_store)
     data = store_training_set([store])
@@ -78,7 +87,8 @@ def test_a_checkpoint_keeps_it_and_is_read_without_running_code(fitted, tmp_path
                                   classifier.probability(first["points"], first["v0"], first["w0"], first["spin"]))
 
 
-def test_a_model_with_it_predicts_toppling_with_no_simulator(fitted, tiny_store, tmp_path, monkeypatch, capsys):
+def test_a_model_with_it_predicts_toppling_with_no_simulator(fitted, tiny_store, hull_store, tmp_path, monkeypatch,
+                                                            capsys):
     from physdyn.cli import main
     from physdyn.cli.fit_topple import write_with_classifier
     from physdyn.geometry.mass import vertical_inertia
@@ -124,4 +134,8 @@ def test_a_model_with_it_predicts_toppling_with_no_simulator(fitted, tiny_store,
                  str(tmp_path / "report")]) == 2
     err = capsys.readouterr().err
     assert "reads hull_surface clouds of 64 points" in err and "holds surface ones" in err
+    # nor on the classifier's kind of store, which the model (trained on surface clouds) does not read
+    assert main(["test", "--checkpoint", str(tmp_path / "pointnet.ckpt"), "--data", hull_store, "--out",
+                 str(tmp_path / "report")]) == 2
+    assert "the model reads surface clouds and its topple classifier hull_surface ones" in capsys.readouterr().err
     assert not (tmp_path / "report").exists()
