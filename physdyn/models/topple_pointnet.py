@@ -231,7 +231,7 @@ def store_training_set(stores: list[Any]) -> TrainingSet:
     return TrainingSet(**{k: np.concatenate(v) for k, v in parts.items()})
 
 
-def fit_pointnet_topple(stores: list[Any], seeds: tuple[int, ...] = (0, 1, 2), steps: int = 10000, batch: int = 1024,
+def fit_pointnet_topple(stores: list[Any], seeds: tuple[int, ...] = (0,), steps: int = 3000, batch: int = 256,
                         width: int = 256, device: str = "cpu", minutes: float | None = None,
                         progress: Callable[[int, int, float], None] | None = None) -> tuple[PointNetToppleClassifier, dict[str, Any]]:
     """One network per seed on the stores' training splits, each chosen on their validation splits, as one
