@@ -159,7 +159,7 @@ def saved_classifier(weights: list[Path], stores: list[str] = ()) -> PointNetTop
     """The package's classifier from networks saved by ``train --save`` (their first file's standardisation:
     every run on the same stores has the same), its F(t) from ``stores`` (else "by the first step")."""
     from physdyn.data.store import load_store
-    from physdyn.models.topple_pointnet import topple_timing
+    from physdyn.models.topple_classifier import topple_timing
 
     saved = [torch.load(path, weights_only=True) for path in weights]
     loaded = [load_store(s) for s in stores]

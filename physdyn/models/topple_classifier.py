@@ -193,9 +193,7 @@ class ToppleClassifier:
 
     def per_step(self, probability: np.ndarray, steps: int) -> np.ndarray:
         """(B,) -> (B, steps + 1): the probability of having toppled by step t (0 at step 0)."""
-        t = np.arange(steps + 1)
-        share = self.timing[np.minimum(t, len(self.timing) - 1)]
-        return np.asarray(probability)[:, None] * share[None, :]
+        return per_step_probability(self.timing, probability, steps)
 
     def predict(self, points_world: np.ndarray, linear_velocity: np.ndarray, angular_velocity: np.ndarray,
                 steps: int, inertia: np.ndarray | None = None) -> np.ndarray:
@@ -222,6 +220,22 @@ class ToppleClassifier:
                    np.asarray(d["timing"]), float(d["friction"]), float(d["rate_hz"]), d.get("num_points"),
                    None if d.get("low") is None else np.asarray(d["low"]),
                    None if d.get("high") is None else np.asarray(d["high"]), physics)
+
+
+def per_step_probability(timing: np.ndarray, probability: np.ndarray, steps: int) -> np.ndarray:
+    """(B,) P(topples) -> (B, steps + 1): P(topples) x F(t), F = ``timing`` held at its last value."""
+    share = timing[np.minimum(np.arange(steps + 1), len(timing) - 1)]
+    return np.asarray(probability)[:, None] * share[None, :]
+
+
+def topple_timing(stores: list[Any]) -> np.ndarray:
+    """F(t), t = 0, 1, ...: the share of the stores' toppling training pushes that have toppled by step t."""
+    toppled = np.concatenate([s.topple_step[(s.topple_step >= 0) & (s.split == 0)] for s in stores])
+    if not len(toppled):
+        return np.array([0.0, 1.0])
+    timing = np.array([np.mean(toppled <= t) for t in range(int(toppled.max()) + 2)])
+    timing[0] = 0.0  # nothing has toppled at the push
+    return timing
 
 
 def topple_classifier_from_dict(d: dict[str, Any]) -> Any:
@@ -319,10 +333,7 @@ def fit_topple_classifier(store: Any, num_points: int | None = None, friction: f
     p_val = clf.probability(x_val)
     threshold = best_threshold(p_val, y_val)
     clf.bias -= float(np.log(threshold / (1 - threshold)))  # now 0.5 is the chosen threshold
-    steps = store.topple_step[train][store.toppled[train].astype(bool)]
-    horizon = int(steps.max()) + 1
-    clf.timing = np.array([np.mean(steps <= t) for t in range(horizon + 1)])
-    clf.timing[0] = 0.0  # nothing has toppled at the push
+    clf.timing = topple_timing([store])
     report = {"train_accuracy": float(np.mean((clf.probability(x_train) >= 0.5) == y_train.astype(bool))),
               "val_accuracy": float(np.mean((clf.probability(x_val) >= 0.5) == y_val)),
               "val_majority": float(max(y_val.mean(), 1 - y_val.mean())), "threshold": threshold,

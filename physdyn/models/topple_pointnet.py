@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from physdyn.geometry.rotations import quat_to_matrix
+from physdyn.models.topple_classifier import per_step_probability, topple_timing
 
 KIND = "pointnet"
 POINTS_METHOD = "hull_surface"  # the cloud it reads: the hull's vertices keep the edges a body tips over
@@ -113,8 +114,7 @@ class PointNetToppleClassifier:
 
     def per_step(self, probability: np.ndarray, steps: int) -> np.ndarray:
         """(B,) -> (B, steps + 1): the probability of having toppled by step t (0 at step 0)."""
-        share = self.timing[np.minimum(np.arange(steps + 1), len(self.timing) - 1)]
-        return np.asarray(probability)[:, None] * share[None, :]
+        return per_step_probability(self.timing, probability, steps)
 
     def predict(self, points_world: np.ndarray, linear_velocity: np.ndarray, angular_velocity: np.ndarray,
                 steps: int, inertia: np.ndarray | None = None) -> np.ndarray:
@@ -252,16 +252,6 @@ def fit_pointnet_topple(stores: list[Any], seeds: tuple[int, ...] = (0,), steps:
               "val_majority": float(max(data.label[val].mean(), 1 - data.label[val].mean())),
               "train_sequences": int(len(train)), "val_sequences": int(len(val))}
     return classifier, report
-
-
-def topple_timing(stores: list[Any]) -> np.ndarray:
-    """F(t), t = 0, 1, ...: the share of the stores' toppling training pushes that have toppled by step t."""
-    toppled = np.concatenate([s.topple_step[(s.topple_step >= 0) & (s.split == 0)] for s in stores])
-    if not len(toppled):
-        return np.array([0.0, 1.0])
-    timing = np.array([np.mean(toppled <= t) for t in range(int(toppled.max()) + 2)])
-    timing[0] = 0.0  # nothing has toppled at the push
-    return timing
 
 
 def stores_first_frames(stores: list[Any], split: int | None = None) -> dict[str, np.ndarray]:
