@@ -11,6 +11,8 @@ Shapes: B sequences, S = ``steps`` predicted transitions, T = S + 1 recorded ste
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
@@ -106,6 +108,10 @@ def integrate(p0: np.ndarray, q0: np.ndarray, v0: np.ndarray, w0: np.ndarray, de
     # One quaternion product per step on component arrays (B,): quat_multiply's stacking per call cost more
     # than the arithmetic in a one-object roll-out.
     sx, sy, sz, sw = np.moveaxis(rotvec_to_quat(d["delta_rotation"]), -1, 0)  # each (B, S)
+    if B == 1:  # one object: the same arithmetic on Python numbers, ten times cheaper than on (1,) arrays
+        out["orientation_xyzw"][0] = _compose_one(out["orientation_xyzw"][0, 0].tolist(), sx[0].tolist(), sy[0].tolist(),
+                                                  sz[0].tolist(), sw[0].tolist())
+        return out
     bx, by, bz, bw = out["orientation_xyzw"][:, 0].T.copy()
     for t in range(S):
         ax, ay, az, aw = sx[:, t], sy[:, t], sz[:, t], sw[:, t]
@@ -115,6 +121,19 @@ def integrate(p0: np.ndarray, q0: np.ndarray, v0: np.ndarray, w0: np.ndarray, de
         bx, by, bz, bw = bx / n, by / n, bz / n, bw / n
         out["orientation_xyzw"][:, t + 1] = np.stack([bx, by, bz, bw], axis=-1)
     return out
+
+
+def _compose_one(first: list, sx: list, sy: list, sz: list, sw: list) -> list:
+    """``integrate``'s quaternion loop for one object, operation for operation: (S + 1) rows of xyzw."""
+    bx, by, bz, bw = first
+    rows = [first]
+    for ax, ay, az, aw in zip(sx, sy, sz, sw):
+        bx, by, bz, bw = (aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+                          aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz)
+        n = math.sqrt(bx * bx + by * by + bz * bz + bw * bw)
+        bx, by, bz, bw = bx / n, by / n, bz / n, bw / n
+        rows.append([bx, by, bz, bw])
+    return rows
 
 
 def _warm_start(warm_start_velocities: Any, B: int) -> tuple[np.ndarray, np.ndarray]:
@@ -156,7 +175,11 @@ def rollout(
     A model with a ``topple_classifier`` (``physdyn fit-topple``) reports its per-step probabilities
     instead of the head's, from ``topple_points_body`` (B, N', 3) (default: ``points_body``).
     spin_inertia: optional (B,) I_zz / m of each body about the world vertical at step 0, for models whose
-    contact prior takes the body's (``model.contact_inertia=body``; ``physdyn.geometry.mass.vertical_inertia``).
+    contact prior takes the body's (``model.contact_inertia=body``; ``physdyn.geometry.mass.vertical_inertia``)
+    and for an outcome correction (``physdyn fit-outcome``; without it or ``body_inertia``, estimated from
+    the cloud).
+    A model with an ``outcome_correction`` has the resting pose of each push that comes to rest without
+    toppling corrected, the correction spread over its trajectory (``physdyn.models.outcome_correction``).
     body_inertia: optional (B, 3, 3) I / m of each body in world axes at step 0, for a topple classifier
     that simulates the cloud's hull (``fit-topple --physics``; ``physdyn.geometry.mass.world_inertia_per_mass``)
     and for ``model.sim_seconds``; without it those roll-outs take the hull's inertia.
@@ -167,6 +190,7 @@ def rollout(
     """
     if steps < 0:
         raise ValueError(f"steps must be >= 0, got {steps}")
+    given_spin_inertia = spin_inertia if body_inertia is None else _numpy(body_inertia).reshape(-1, 3, 3)[:, 2, 2]
     spin_inertia = _if_taken(model, spin_inertia)
     q0 = _numpy(orientation0_xyzw)
     B = q0.shape[0]
@@ -224,6 +248,13 @@ def rollout(
         probability = probability.copy()
         probability[:, : K + 1] = np.where(over, 1.0, probability[:, : K + 1])
         probability[:, K + 1 :] = np.where(over[:, -1:], 1.0, probability[:, K + 1 :])
+    if getattr(model, "outcome_correction", None) is not None:  # fit-outcome: where the push ends, learned
+        from physdyn.models.outcome_correction import correct_rollout  # torch: only for models that have one
+
+        states = {**states, **{k: np.array(v) for k, v in deltas.items()}}
+        correct_rollout(model, states, _numpy(lin_vel0).reshape(B, 3), _numpy(ang_vel0).reshape(B, 3), given_spin_inertia,
+                        points, probability)
+        deltas = {k: states.pop(k) for k in DELTA_KEYS}
     return RolloutResult(**states, topple_probability=probability, **deltas, fed_linear_velocity=fed_v,
                          fed_angular_velocity=fed_w)
 

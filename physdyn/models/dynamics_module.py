@@ -114,6 +114,8 @@ class DynamicsModel(LightningModule):
         self.register_buffer("residual_mask", f32(RESIDUAL_MASKS[m.residual_channels]), persistent=False)
         # Whether the sequence topples, from step-0 features (`physdyn fit-topple`); None: the head's rule.
         self.topple_classifier = None
+        # A learned correction of where each push comes to rest (`physdyn fit-outcome`); None: none.
+        self.outcome_correction = None
         # Another DynamicsModel whose velocity and position changes replace this one's, both networks fed
         # the same state (`python -m physdyn.models.export --linear-from`); None: this model alone.
         self.linear_channels = None
@@ -127,12 +129,18 @@ class DynamicsModel(LightningModule):
                 state.setdefault(f"linear_channels.{name}", torch.zeros_like(getattr(self, name)))
         if checkpoint.get("topple_classifier"):
             self.topple_classifier = topple_classifier_from_dict(checkpoint["topple_classifier"])
+        if checkpoint.get("outcome_correction"):
+            from physdyn.models.outcome_correction import OutcomeCorrection
+
+            self.outcome_correction = OutcomeCorrection.from_dict(checkpoint["outcome_correction"])
         if checkpoint.get("linear_channels"):  # its weights are in the state dict, under linear_channels.
             self.attach_linear_channels(DynamicsModel(**checkpoint["linear_channels"]["hyper_parameters"]))
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         if self.topple_classifier is not None:
             checkpoint["topple_classifier"] = self.topple_classifier.to_dict()
+        if self.outcome_correction is not None:
+            checkpoint["outcome_correction"] = self.outcome_correction.to_dict()
         if self.linear_channels is not None:
             checkpoint["linear_channels"] = {"hyper_parameters": dict(self.linear_channels.hparams)}
 

@@ -31,7 +31,7 @@ from physdyn.models.training import validate_experiment_config
 
 # What DynamicsModel.load_from_checkpoint needs; the optimiser, loops and callbacks are only for resuming.
 KEEP = ("state_dict", "hyper_parameters", "hparams_name", "pytorch-lightning_version", "epoch", "global_step",
-        "topple_classifier", "linear_channels")
+        "topple_classifier", "outcome_correction", "linear_channels")
 # Settings that change what a trained network is combined with, not the network itself, and the name
 # reports give the model.
 INFERENCE_KEYS = ("model.residual_gate_linear", "model.residual_gate_angular", "model.contact_inertia",

@@ -1,0 +1,310 @@
+"""Where does the push end? A learned correction of a roll-out's resting pose (``physdyn fit-outcome``).
+
+A position 1/120 s PyBullet gets right asks for the friction's work right to about 2 % on every new mesh
+(docs/ablations.md, "How exactly the physics must be known"); the contact prior's slide is right to about
+2.5 % and its path bends wrongly, and neither its per-step residual networks nor a map of the impact phase
+carried a gain to meshes they never saw. This corrects the end instead: a small network reads the push (the
+step-0 velocity and spin in the frame of its travel, I_zz / m) and where the roll-out came to rest (its
+displacement along and across the travel, its turn about the vertical, and its last velocities), and gives
+the truth minus that resting pose, trained on thousands of shapes' pushes, half of each batch mirrored
+across its travel. One network per seed, averaged. Measured in docs/ablations.md ("Correcting where the
+push ends").
+
+The correction is spread over the trajectory in proportion to the roll-out's own progress (the fraction of
+its horizontal path, and of its turning, covered by each step), so the path stays smooth, starts where it
+started and ends at the corrected pose; the velocities take the matching change. It applies only where the
+roll-out has come to rest by its last step and has not toppled: what it was trained on.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+import torch
+
+from physdyn.geometry.rotations import quat_conjugate, quat_multiply, rotvec_to_quat, world_delta_rotvec
+from physdyn.models.topple_pointnet import MIN_STEPS, cloud_spin_inertia, travel_turn
+
+KIND = "outcome_mlp"
+INPUTS = 13  # step-0 velocity (3) and spin (3) in the travel frame, the resting state (6), I_zz / m
+TARGETS = ("along", "across", "yaw")  # truth minus roll-out at rest: displacement in the travel frame, turn
+# Mirrored across its travel (y -> -y), a push is a push of the mirrored shape: velocities (along, across, up)
+# change sign as (+, -, +), spins as (-, +, -); the resting state (v along, v across, w_z, p along, p across,
+# yaw) as (+, -, -, +, -, -); the targets (along, across, yaw) as (+, -, -).
+MIRROR_INPUTS = np.array([1, -1, 1, -1, 1, -1, 1, -1, -1, 1, -1, -1, 1], dtype=np.float64)
+MIRROR_TARGETS = np.array([1.0, -1.0, -1.0])
+# At rest: a roll-out slower than this at its last step has stopped (the contact prior stops at 1e-8; the
+# networks' own velocities settle near, not at, zero).
+REST_SPEED = 0.02   # m/s
+REST_SPIN = 0.2     # rad/s
+EXTRA_STEPS = 15    # fitting rolls each push out this far past its truth's end, as a long request would
+
+
+class OutcomeNet(torch.nn.Module):
+    """Standardised inputs (B, 13) -> standardised corrections (B, 3): two hidden layers."""
+
+    def __init__(self, width: int = 256):
+        super().__init__()
+        self.layers = torch.nn.Sequential(torch.nn.Linear(INPUTS, width), torch.nn.ReLU(), torch.nn.Linear(width, width),
+                                          torch.nn.ReLU(), torch.nn.Linear(width, len(TARGETS)))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.layers(x)
+
+
+def yaw_of(q_xyzw: np.ndarray) -> np.ndarray:
+    """The turn about the world vertical of (..., 4) rotations, radians."""
+    x, y, z, w = np.moveaxis(np.asarray(q_xyzw, dtype=np.float64), -1, 0)
+    return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+def resting_state(turn: np.ndarray, p0: np.ndarray, q0: np.ndarray, p: np.ndarray, q: np.ndarray, v: np.ndarray,
+                  w: np.ndarray) -> np.ndarray:
+    """(B, 6) the state at the last step in the travel frame ``turn`` (B, 3, 3): velocity along and across,
+    spin about the vertical, displacement from ``p0`` along and across, turn about the vertical since ``q0``."""
+    vt = np.einsum("bij,bj->bi", turn, v)
+    dp = np.einsum("bij,bj->bi", turn, p - p0)
+    yaw = yaw_of(quat_multiply(q, quat_conjugate(q0)))
+    return np.stack([vt[:, 0], vt[:, 1], w[:, 2], dp[:, 0], dp[:, 1], yaw], axis=1)
+
+
+def outcome_inputs(v0: np.ndarray, w0: np.ndarray, spin_inertia: np.ndarray, p0: np.ndarray, q0: np.ndarray,
+                   p: np.ndarray, q: np.ndarray, v: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(raw inputs (B, 13), the travel frames (B, 3, 3)) from the step-0 state and the last step's."""
+    turn = travel_turn(v0)
+    inputs = np.concatenate([np.einsum("bij,bj->bi", turn, v0), np.einsum("bij,bj->bi", turn, w0),
+                             resting_state(turn, p0, q0, p, q, v, w), np.asarray(spin_inertia).reshape(-1, 1)], axis=1)
+    return inputs, turn
+
+
+def wrap(angle: np.ndarray) -> np.ndarray:
+    return (angle + np.pi) % (2 * np.pi) - np.pi
+
+
+@dataclass
+class OutcomeCorrection:
+    """An ensemble of ``OutcomeNet`` state dicts with the inputs' and targets' standardisation."""
+
+    networks: list[dict[str, torch.Tensor]]
+    inputs_mean: np.ndarray
+    inputs_std: np.ndarray
+    targets_mean: np.ndarray
+    targets_std: np.ndarray
+    width: int = 256
+    _layers: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        # The networks' layers stacked, on numpy: one prediction is a few small products, where torch's
+        # per-call overhead would cost a millisecond (issue #26 counts every one of a new mesh's)
+        for state in self.networks:
+            OutcomeNet(self.width).load_state_dict(state)  # the state is a whole network of this width
+        names = sorted({k.rsplit(".", 1)[0] for k in self.networks[0]}, key=lambda k: int(k.split(".")[1]))
+        self._layers = [(np.stack([s[f"{n}.weight"].double().numpy().T for s in self.networks]),
+                         np.stack([s[f"{n}.bias"].double().numpy() for s in self.networks])[:, None, :]) for n in names]
+
+    def correction(self, inputs: np.ndarray) -> np.ndarray:
+        """Raw inputs (B, 13) -> (B, 3): the displacement along and across the travel (m) and the turn
+        about the vertical (rad) to add to the resting pose (the mean of the networks')."""
+        h = ((np.asarray(inputs, dtype=np.float64) - self.inputs_mean) / self.inputs_std)[None]
+        for i, (weight, bias) in enumerate(self._layers):
+            h = h @ weight + bias
+            if i + 1 < len(self._layers):
+                h = np.maximum(h, 0.0)
+        return h.mean(axis=0) * self.targets_std + self.targets_mean
+
+    def apply(self, states: dict[str, np.ndarray], v0: np.ndarray, w0: np.ndarray, spin_inertia: np.ndarray,
+              dt: float, toppled: np.ndarray | None = None) -> np.ndarray:
+        """Correct ``states`` (``com_position`` (B, T, 3), ``orientation_xyzw`` (B, T, 4), ``linear_velocity``,
+        ``angular_velocity``) in place where the roll-out rests at its last step and has not ``toppled``
+        (B,). Returns which rows it corrected (B,)."""
+        p, q = states["com_position"], states["orientation_xyzw"]
+        v, w = states["linear_velocity"], states["angular_velocity"]
+        B, T = p.shape[:2]
+        rows = (np.linalg.norm(v[:, -1], axis=1) < REST_SPEED) & (np.linalg.norm(w[:, -1], axis=1) < REST_SPIN)
+        if toppled is not None:
+            rows &= ~np.asarray(toppled, dtype=bool)
+        if T < 2 or not rows.any():
+            return np.zeros(B, dtype=bool) if T < 2 else rows
+        idx = np.flatnonzero(rows)
+        inputs, turn = outcome_inputs(v0[idx], w0[idx], spin_inertia[idx], p[idx, 0], q[idx, 0], p[idx, -1], q[idx, -1],
+                                      v[idx, -1], w[idx, -1])
+        fix = self.correction(inputs)
+        shift = fix[:, 0:1] * turn[:, 0, :2] + fix[:, 1:2] * turn[:, 1, :2]  # (b, 2) world, horizontal
+        along = _progress(np.linalg.norm(np.diff(p[idx, :, :2], axis=1), axis=-1))
+        turned = _progress(np.abs(wrap(np.diff(yaw_of(quat_multiply(q[idx], quat_conjugate(q[idx, :1]))), axis=1))))
+        p[idx, :, :2] += along[..., None] * shift[:, None, :]
+        v[idx, :, :2] += np.gradient(along, dt, axis=1)[..., None] * shift[:, None, :]
+        spin = turned * fix[:, 2:3]  # (b, T) radians about the world vertical through the centre of mass
+        q[idx] = quat_multiply(rotvec_to_quat(spin[..., None] * np.array([0.0, 0.0, 1.0])), q[idx])
+        w[idx, :, 2] += np.gradient(turned, dt, axis=1) * fix[:, 2:3]
+        return rows
+
+    def to_dict(self) -> dict[str, Any]:
+        # tensors, lists and numbers only: checkpoints are read without running code (docs/security.md)
+        return {"kind": KIND, "networks": [{k: t.detach().cpu().clone() for k, t in s.items()} for s in self.networks],
+                "inputs_mean": self.inputs_mean.tolist(), "inputs_std": self.inputs_std.tolist(),
+                "targets_mean": self.targets_mean.tolist(), "targets_std": self.targets_std.tolist(),
+                "width": int(self.width)}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "OutcomeCorrection":
+        if d.get("kind") != KIND:
+            raise ValueError(f"unknown outcome correction kind {d.get('kind')!r}")
+        return cls([dict(s) for s in d["networks"]], np.asarray(d["inputs_mean"]), np.asarray(d["inputs_std"]),
+                   np.asarray(d["targets_mean"]), np.asarray(d["targets_std"]), int(d["width"]))
+
+
+def _progress(step_sizes: np.ndarray) -> np.ndarray:
+    """(b, T-1) non-negative step sizes -> (b, T) the fraction covered by each step, 0 at the first and 1 at
+    the last (a straight ramp where nothing moved)."""
+    b, s = step_sizes.shape
+    covered = np.concatenate([np.zeros((b, 1)), np.cumsum(step_sizes, axis=1)], axis=1)
+    total = covered[:, -1:]
+    ramp = np.broadcast_to(np.linspace(0.0, 1.0, s + 1), covered.shape)
+    return np.where(total > 1e-12, covered / np.maximum(total, 1e-12), ramp)
+
+
+def correct_rollout(model: Any, states: dict[str, np.ndarray], v0: np.ndarray, w0: np.ndarray,
+                    spin_inertia: np.ndarray | None, points_world: np.ndarray, probability: np.ndarray | None) -> None:
+    """Apply ``model.outcome_correction`` (if any) to a roll-out's ``states`` in place, and make its
+    ``delta_*`` (if present) the corrected states' steps. Toppled: any per-step probability >= 0.5."""
+    correction = getattr(model, "outcome_correction", None)
+    if correction is None:
+        return
+    spin = cloud_spin_inertia(points_world) if spin_inertia is None else np.asarray(spin_inertia, dtype=np.float64)
+    toppled = None if probability is None else (np.asarray(probability) >= 0.5).any(axis=1)
+    rows = correction.apply(states, np.asarray(v0, dtype=np.float64).reshape(-1, 3),
+                            np.asarray(w0, dtype=np.float64).reshape(-1, 3), spin, float(model.prior_dt), toppled)
+    if rows.any() and "delta_position" in states:
+        states["delta_position"][rows] = np.diff(states["com_position"][rows], axis=1)
+        states["delta_linear_velocity"][rows] = np.diff(states["linear_velocity"][rows], axis=1)
+        states["delta_angular_velocity"][rows] = np.diff(states["angular_velocity"][rows], axis=1)
+        q = states["orientation_xyzw"][rows]
+        states["delta_rotation"][rows] = world_delta_rotvec(q[:, :-1], q[:, 1:])
+
+
+# --------------------------------------------------------------------------------------------------
+# Fitting
+# --------------------------------------------------------------------------------------------------
+def store_outcomes(model: Any, stores: list[Any], chunk: int = 2048,
+                   progress: Callable[[int, int], None] | None = None) -> dict[str, np.ndarray]:
+    """Every non-toppling push of ``stores`` rolled out by ``model`` (without any correction it holds) to
+    ``EXTRA_STEPS`` past its truth's end: raw inputs (P, 13), targets (P, 3) truth minus roll-out at rest,
+    split (P,), shape (P,) (numbered across stores), rests (P,) whether the roll-out came to rest."""
+    from physdyn.data.windows import store_spin_inertia, store_world_inertia
+    from physdyn.eval.rollout import rollout
+
+    saved, model.outcome_correction = getattr(model, "outcome_correction", None), None
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("inputs", "targets", "split", "shape", "rests")}
+    try:
+        offset, done = 0, 0
+        total = sum(int((s.topple_step < 0).sum()) for s in stores)
+        for store in stores:
+            sims = np.flatnonzero(store.topple_step < 0)
+            lengths = store.lengths()
+            for part in np.array_split(sims, max(1, -(-len(sims) // chunk))):
+                if not len(part):
+                    continue
+                first, last = store.start[part], store.start[part] + lengths[part] - 1
+                q0, p0 = store.orientation_xyzw[first], store.com_position[first]
+                v0, w0 = store.linear_velocity[first], store.angular_velocity[first]
+                spin = store_spin_inertia(store, part, q0)
+                out = rollout(model, store.points[store.shape_id[part]], q0, p0, v0, w0,
+                              int(lengths[part].max()) - 1 + EXTRA_STEPS, spin_inertia=spin,
+                              body_inertia=store_world_inertia(store, part, q0))
+                p, q = out.com_position[:, -1], out.orientation_xyzw[:, -1]
+                v, w = out.linear_velocity[:, -1], out.angular_velocity[:, -1]
+                inputs, turn = outcome_inputs(v0, w0, spin, p0, q0, p, q, v, w)
+                truth = resting_state(turn, p0, q0, store.com_position[last], store.orientation_xyzw[last],
+                                      store.linear_velocity[last], store.angular_velocity[last])
+                target = truth[:, 3:] - inputs[:, 9:12]
+                target[:, 2] = wrap(target[:, 2])
+                parts["inputs"].append(inputs)
+                parts["targets"].append(target)
+                parts["split"].append(np.asarray(store.split[part], dtype=np.int64))
+                parts["shape"].append(store.shape_id[part].astype(np.int64) + offset)
+                parts["rests"].append((np.linalg.norm(v, axis=1) < REST_SPEED) & (np.linalg.norm(w, axis=1) < REST_SPIN))
+                done += len(part)
+                if progress is not None:
+                    progress(done, total)
+            offset += store.num_shapes
+    finally:
+        model.outcome_correction = saved
+    return {k: np.concatenate(v) for k, v in parts.items()}
+
+
+def train_outcome_network(inputs: np.ndarray, targets: np.ndarray, train: np.ndarray, val: np.ndarray,
+                          steps: int = 6000, batch: int = 1024, width: int = 256, seed: int = 0,
+                          progress: Callable[[int, float], None] | None = None) -> dict[str, Any]:
+    """One network on the pushes ``train``, its checkpoint the best of 20 checks of the mean standardised
+    |error| on ``val``: AdamW (lr 1e-3, weight decay 1e-4), one-cycle schedule, smooth-L1, half of each
+    batch mirrored across its travel."""
+    if steps < MIN_STEPS:
+        raise ValueError(f"steps must be at least {MIN_STEPS} (the network is checked 20 times), got {steps}")
+    torch.manual_seed(seed)
+    mu, sd = inputs[train].mean(0), inputs[train].std(0) + 1e-9
+    ymu, ysd = targets[train].mean(0), targets[train].std(0) + 1e-9
+    x = torch.tensor((inputs - mu) / sd, dtype=torch.float32)
+    xm = torch.tensor((inputs * MIRROR_INPUTS - mu) / sd, dtype=torch.float32)
+    y = torch.tensor((targets - ymu) / ysd, dtype=torch.float32)
+    ym = torch.tensor((targets * MIRROR_TARGETS - ymu) / ysd, dtype=torch.float32)
+    net = OutcomeNet(width)
+    opt = torch.optim.AdamW(net.parameters(), lr=1e-3, weight_decay=1e-4)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=1e-3, total_steps=steps, pct_start=max(0.05, 2.0 / steps))
+    train_t, val_t = torch.tensor(train), torch.tensor(val)
+    best, best_state, started = np.inf, None, time.time()
+    for step in range(steps):
+        idx = train_t[torch.randint(len(train_t), (batch,))]
+        m = (torch.rand(batch) < 0.5)[:, None]
+        loss = torch.nn.functional.smooth_l1_loss(net(torch.where(m, xm[idx], x[idx])), torch.where(m, ym[idx], y[idx]))
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        sched.step()
+        if (step + 1) % max(1, steps // 20) == 0 or step + 1 == steps:
+            net.eval()
+            with torch.no_grad():
+                error = float((net(x[val_t]) - y[val_t]).abs().mean())
+            net.train()
+            if error < best:
+                best, best_state = error, {k: t.detach().clone() for k, t in net.state_dict().items()}
+            if progress is not None:
+                progress(step + 1, error)
+    return {"state_dict": best_state, "inputs_mean": mu, "inputs_std": sd, "targets_mean": ymu, "targets_std": ysd,
+            "val_error": best, "seconds": time.time() - started}
+
+
+def fit_outcome_correction(model: Any, stores: list[Any], seeds: tuple[int, ...] = (0,), steps: int = 6000,
+                           batch: int = 1024, width: int = 256, progress: Callable[[str], None] | None = None,
+                           ) -> tuple[OutcomeCorrection, dict[str, Any]]:
+    """One network per seed on the stores' non-toppling training pushes whose roll-out by ``model`` comes to
+    rest, each chosen on the validation split's; the ensemble and a report: the median error of the resting
+    position and turn on each split, the model's own and corrected."""
+    say = progress or (lambda _: None)
+    data = store_outcomes(model, stores, progress=lambda done, total: say(f"rolled out {done}/{total} pushes"))
+    usable = data["rests"]
+    train, val = np.flatnonzero(usable & (data["split"] == 0)), np.flatnonzero(usable & (data["split"] == 1))
+    if not len(train) or not len(val):
+        raise ValueError(f"{len(train)} training and {len(val)} validation pushes come to rest without toppling; "
+                         "fit on stores with both splits")
+    runs = [train_outcome_network(data["inputs"], data["targets"], train, val, steps, batch, width, seed,
+                                  lambda step, error, s=seed: say(f"network {s}: step {step}/{steps}, validation error {error:.3f}"))
+            for seed in seeds]
+    first = runs[0]  # one standardisation: every run's is the training split's, the same numbers
+    correction = OutcomeCorrection([r["state_dict"] for r in runs], first["inputs_mean"], first["inputs_std"],
+                                   first["targets_mean"], first["targets_std"], width)
+    report: dict[str, Any] = {"train_pushes": int(len(train)), "val_pushes": int(len(val)),
+                              "not_at_rest": int((~usable).sum()), "splits": {}}
+    for name, split in (("train", 0), ("validation", 1), ("test", 2)):
+        idx = np.flatnonzero(usable & (data["split"] == split))
+        if not len(idx):
+            continue
+        y = data["targets"][idx]
+        rest = y - correction.correction(data["inputs"][idx])
+        report["splits"][name] = {"pushes": int(len(idx)),
+                                  "position_cm": [100 * float(np.median(np.hypot(a[:, 0], a[:, 1]))) for a in (y, rest)],
+                                  "yaw_deg": [float(np.degrees(np.median(np.abs(wrap(a[:, 2]))))) for a in (y, rest)]}
+    return correction, report

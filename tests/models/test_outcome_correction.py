@@ -1,0 +1,131 @@
+"""The learned correction of where a push ends (`physdyn fit-outcome`): it learns from a real store, its
+inputs mirror as its training assumes, it moves a trajectory's end and nothing before its start, and a
+checkpoint with it predicts with no simulator."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from physdyn.data.store import load_store
+from physdyn.geometry.rotations import quat_multiply, rotvec_to_quat
+from physdyn.models.outcome_correction import (MIRROR_INPUTS, MIRROR_TARGETS, OutcomeCorrection, OutcomeNet,
+                                               fit_outcome_correction, outcome_inputs, yaw_of)
+from physdyn.predict.predictor import contact_prior_predictor
+
+
+@pytest.fixture(scope="module")
+def fitted(tiny_hull_store):
+    torch.set_num_threads(1)
+    store = load_store(tiny_hull_store)
+    model = contact_prior_predictor(rate_hz=store.rate_hz, num_points=store.points.shape[1]).model
+    return store, *fit_outcome_correction(model, [store], seeds=(0,), steps=400, batch=32, width=32)
+
+
+def test_it_learns_where_the_prior_ends_wrong(fitted):
+    store, correction, report = fitted
+    train = report["splits"]["train"]
+    assert train["pushes"] == report["train_pushes"] > 30
+    before, after = train["position_cm"]
+    assert after < 0.8 * before, (before, after)  # the training pushes' resting positions, learned
+    assert len(correction.networks) == 1 and set(report["splits"]) >= {"train", "validation"}
+
+
+def test_the_inputs_mirror_as_the_training_assumes():
+    rng = np.random.default_rng(0)
+    B = 40
+    v0, w0 = rng.normal(size=(B, 3)), rng.normal(size=(B, 3))
+    p0, p = rng.normal(size=(B, 3)), rng.normal(size=(B, 3))
+    v, w = rng.normal(size=(B, 3)), rng.normal(size=(B, 3))
+    q0 = rotvec_to_quat(rng.normal(size=(B, 3)))
+    q = rotvec_to_quat(rng.normal(size=(B, 3)))
+    inputs, turn = outcome_inputs(v0, w0, np.ones(B), p0, q0, p, q, v, w)
+    # along the travel: the whole horizontal speed at step 0; the resting displacement in that frame
+    np.testing.assert_allclose(inputs[:, 0], np.hypot(v0[:, 0], v0[:, 1]))
+    np.testing.assert_allclose(np.hypot(inputs[:, 9], inputs[:, 10]), np.hypot(*(p - p0)[:, :2].T))
+    # the whole push mirrored in the world (y -> -y; spins are axial vectors; rotations R -> F R F)
+    flip, qf = np.diag([1.0, -1.0, 1.0]), np.array([-1.0, 1.0, -1.0, 1.0])
+    mirrored, _ = outcome_inputs(v0 @ flip, -(w0 @ flip), np.ones(B), p0 @ flip, q0 * qf, p @ flip, q * qf,
+                                 v @ flip, -(w @ flip))
+    np.testing.assert_allclose(mirrored, inputs * MIRROR_INPUTS, atol=1e-9)
+    # the targets (along, across, turn) are differences of these columns, so they mirror as columns 9-11
+    np.testing.assert_array_equal(MIRROR_TARGETS, MIRROR_INPUTS[9:12])
+
+
+def constant_correction(along: float, across: float, turn: float) -> OutcomeCorrection:
+    """A correction whose network always says (along, across, turn): the last layer all bias."""
+    net = OutcomeNet(8)
+    with torch.no_grad():
+        net.layers[-1].weight.zero_()
+        net.layers[-1].bias.copy_(torch.tensor([along, across, turn]))
+    return OutcomeCorrection([net.state_dict()], np.zeros(13), np.ones(13), np.zeros(3), np.ones(3), width=8)
+
+
+def test_it_moves_the_end_and_spreads_the_change_over_the_path():
+    dt, T = 1 / 15, 12
+    # three pushes along +y, sliding to rest by step 8 and turning; the third is still moving at the end
+    t = np.minimum(np.arange(T), 8) / 8.0
+    path = np.stack([np.zeros(T), 0.2 * (2 * t - t * t), np.full(T, 0.05)], axis=1)
+    p = np.repeat(path[None], 3, axis=0)
+    q = rotvec_to_quat(np.repeat((0.6 * t)[None, :, None] * np.array([0.0, 0.0, 1.0]), 3, axis=0))
+    v = np.gradient(p, dt, axis=1)
+    v[:, 8:] = 0.0
+    w = np.zeros((3, T, 3))
+    v[2, -1] = [0.0, 0.3, 0.0]
+    states = {"com_position": p.copy(), "orientation_xyzw": q.copy(), "linear_velocity": v.copy(), "angular_velocity": w.copy()}
+    v0 = np.tile([0.0, 0.5, 0.0], (3, 1))
+    rows = constant_correction(0.03, -0.01, 0.2).apply(states, v0, np.zeros((3, 3)), np.full(3, 1e-3), dt,
+                                                      toppled=np.array([False, True, False]))
+    np.testing.assert_array_equal(rows, [True, False, False])  # the toppled and the moving push are left alone
+    for key in states:
+        np.testing.assert_array_equal(states[key][1:], {"com_position": p, "orientation_xyzw": q,
+                                                        "linear_velocity": v, "angular_velocity": w}[key][1:])
+    new = states["com_position"][0]
+    np.testing.assert_allclose(new[0], p[0, 0])  # the start stays
+    # travel is +y: along +0.03 m is +y, across (+x turned left of the travel) -0.01 m is +x
+    np.testing.assert_allclose(new[-1] - p[0, -1], [0.01, 0.03, 0.0], atol=1e-12)
+    assert (np.diff(np.linalg.norm(new[:, :2] - p[0, :, :2], axis=1)) >= -1e-12).all()  # the change grows along the path
+    turn = yaw_of(quat_multiply(states["orientation_xyzw"][0], np.array([0.0, 0.0, 0.0, 1.0])))
+    assert turn[-1] == pytest.approx(0.6 + 0.2) and turn[0] == pytest.approx(0.0)
+    # at rest after the correction too: the velocity's change follows the path's
+    np.testing.assert_allclose(states["linear_velocity"][0, 9:], 0.0, atol=1e-12)
+
+
+def test_fit_outcome_writes_a_checkpoint_that_predicts_with_no_simulator(tiny_hull_store, tiny_store, tmp_path,
+                                                                          monkeypatch, capsys):
+    from physdyn.cli import main
+    from physdyn.predict.predictor import load_predictor
+
+    out = tmp_path / "outcome.ckpt"
+    args = ["fit-outcome", "--checkpoint", "contact_prior", "--data", tiny_hull_store, "--out", str(out)]
+    assert main([*args, "--steps", "40", "--batch", "32"]) == 0
+    assert "median error of the resting pose" in capsys.readouterr().out and out.is_file()
+    # bad input: one line, exit 2, nothing written
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "already exists" in err and len(err.strip().splitlines()) == 1
+    for bad, message in ((["--checkpoint", "contact_prior"], "pass --data"),
+                         (["--checkpoint", "contact_prior", "--data", tiny_store], "hull_surface"),
+                         (["--checkpoint", "contact_prior", "--data", tiny_hull_store, "--steps", "3"], "at least 20")):
+        assert main(["fit-outcome", *bad, "--out", str(tmp_path / "bad.ckpt")]) == 2
+        assert message in capsys.readouterr().err
+        assert not (tmp_path / "bad.ckpt").exists()
+    predictor = load_predictor(str(out))
+    prior = contact_prior_predictor(num_points=64)
+    assert predictor.model.outcome_correction is not None
+    box = trimesh.creation.box((0.08, 0.05, 0.04))
+    predictor.predict(box.copy(), [0.5, 0.0, 0.0], [0.0, 0.0, 0.0], seconds=0.2)  # imports done, mesh prepared
+    import pybullet
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("PyBullet ran inside the prediction")
+
+    for name in ("connect", "stepSimulation"):
+        monkeypatch.setattr(pybullet, name, refuse)
+    mine = predictor.predict(box, [0.8, 0.2, 0.0], [0.0, 0.0, 4.0], seconds=2.0)
+    theirs = prior.predict(box, [0.8, 0.2, 0.0], [0.0, 0.0, 4.0], seconds=2.0)
+    np.testing.assert_allclose(mine["com_position"][0], theirs["com_position"][0])
+    assert not np.allclose(mine["com_position"][-1], theirs["com_position"][-1], atol=1e-5)
+    assert np.isfinite(mine["com_position"]).all() and np.isfinite(mine["linear_velocity"]).all()
