@@ -82,12 +82,19 @@ def main() -> None:
     parser.add_argument("--planners", nargs="+", default=DEFAULT_PLANNERS, choices=list(PLANNERS), metavar="NAME",
                         help="which planners (default: all but the bundled model alone): " + "; ".join(PLANNERS))
     parser.add_argument("--json", default=None, help="also write every plan's figures here")
+    parser.add_argument("--screen-checkpoint", action="append", default=[], metavar="CKPT",
+                        help="also the default planner with this checkpoint's model as its screen (repeatable), "
+                             "e.g. the contact prior with its outcome correction (physdyn fit-outcome)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     warnings.simplefilter("ignore")
     store = external_store(Path(args.work), args.random, args.pushes)
     goals = goals_from_store(store, args.goals)
     predictor = load_predictor(args.checkpoint)
+    for path in args.screen_checkpoint:  # the same search, another screen (it shares the mesh's preparation)
+        name = f"physdyn ({Path(path).stem} screen, PyBullet 1/240 s ranks, check)"
+        PLANNERS[name] = {"screen": load_predictor(path)}
+        args.planners.append(name)
     rows = []
     started = time.perf_counter()
     for g in goals:

@@ -50,3 +50,14 @@ def run_cli(*args: str, timeout: float = 300, check: bool = False) -> subprocess
     if check and proc.returncode != 0:
         raise AssertionError(f"physdyn {' '.join(args)} failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
     return proc
+
+
+def refuse_pybullet(monkeypatch) -> None:
+    """From here on in the test, PyBullet refuses to run: any simulation inside a prediction fails."""
+    import pybullet
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("PyBullet ran inside the prediction")
+
+    for name in ("connect", "stepSimulation"):
+        monkeypatch.setattr(pybullet, name, refuse)

@@ -42,19 +42,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from physdyn.cli.fit_topple import checked_out
     from physdyn.data.store import load_store
     from physdyn.eval.baselines import checkpoint_and_store
-    from physdyn.files import check_writable
+    from physdyn.eval.outcome_fit import fit_outcome_correction
     from physdyn.models.checkpoint_file import read_checkpoint, write_torch_file
-    from physdyn.models.outcome_correction import fit_outcome_correction
     from physdyn.models.topple_pointnet import MIN_STEPS
 
-    out = Path(args.out)
-    if out.suffix != ".ckpt":
-        raise PhysdynError(f"--out {out}: write a .ckpt file")
-    if out.exists() and not args.overwrite:
-        raise PhysdynError(f"--out {out} already exists; pass --overwrite to replace it or choose another --out")
-    check_writable(out, "--out")
+    out = checked_out(args.out, args.overwrite)
     if min(args.seeds) < 0 or args.steps < MIN_STEPS or args.batch < 1:
         raise PhysdynError(f"--seeds must be >= 0, --steps at least {MIN_STEPS} (the networks are checked 20 times) "
                            f"and --batch at least 1; got {args.seeds}, {args.steps}, {args.batch}")

@@ -55,15 +55,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from physdyn.data.store import load_store
     from physdyn.eval.baselines import checkpoint_and_store
-    from physdyn.files import check_writable
     from physdyn.models.topple_classifier import fit_topple_classifier
 
-    out = Path(args.out)
-    if out.suffix != ".ckpt":
-        raise PhysdynError(f"--out {out}: write a .ckpt file")
-    if out.exists() and not args.overwrite:
-        raise PhysdynError(f"--out {out} already exists; pass --overwrite to replace it or choose another --out")
-    check_writable(out, "--out")
+    out = checked_out(args.out, args.overwrite)
     if args.num_points is not None and args.num_points < 16:
         raise PhysdynError(f"--num-points must be at least 16, got {args.num_points}")
     if args.pointnet and (args.physics or args.num_points is not None):
@@ -94,6 +88,20 @@ def run(args: argparse.Namespace) -> int:
           f"{report['train_sequences']} training sequences")
     print(f"wrote {out}")
     return 0
+
+
+def checked_out(out: str, overwrite: bool) -> Path:
+    """--out as a path a checkpoint may be written to (a .ckpt, not there unless ``overwrite``, writable), or a
+    one-line error; shared by the commands that add to a checkpoint."""
+    from physdyn.files import check_writable
+
+    path = Path(out)
+    if path.suffix != ".ckpt":
+        raise PhysdynError(f"--out {path}: write a .ckpt file")
+    if path.exists() and not overwrite:
+        raise PhysdynError(f"--out {path} already exists; pass --overwrite to replace it or choose another --out")
+    check_writable(path, "--out")
+    return path
 
 
 def _check_device(name: str) -> None:

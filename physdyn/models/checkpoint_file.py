@@ -30,6 +30,18 @@ ALLOWED_TYPES: list[Any] = []
 
 _GLOBAL = re.compile(r"GLOBAL ([\w.]+)")
 
+# The models shipped with physdyn, by name: a checkpoint argument of one of these names that is not a file
+# reads the shipped one (docs/model-card.md): the bundled model, the default; "fast", nothing simulated.
+ASSETS = Path(__file__).resolve().parents[1] / "assets"
+SHIPPED = {"bundled": ASSETS / "bundled.ckpt", "fast": ASSETS / "fast.ckpt"}
+
+
+def shipped_or_path(path: str | Path) -> Path:
+    """``path``, or the shipped model of that name when no such file exists."""
+    if str(path) in SHIPPED and not Path(path).exists():
+        return SHIPPED[str(path)]
+    return Path(path)
+
 
 def read_torch_file(path: str | Path, expected: str) -> Any:
     """What ``torch.save`` wrote to ``path``, on the CPU, read without running code: only tensors, containers,
@@ -71,8 +83,9 @@ def _refusal(message: str) -> str:
 
 
 def read_checkpoint(path: str | Path) -> dict:
-    """The checkpoint's dict (weights, hyper-parameters, and whatever else it holds), on the CPU."""
-    path = Path(path)
+    """The checkpoint's dict (weights, hyper-parameters, and whatever else it holds), on the CPU. ``path`` may
+    name a shipped model (``SHIPPED``)."""
+    path = shipped_or_path(path)
     if not path.is_file():
         raise CheckpointError(f"no checkpoint file {path}; train one with `physdyn fit` (it writes best.ckpt and last.ckpt)")
     raw = read_torch_file(path, "a .ckpt written by `physdyn fit`")

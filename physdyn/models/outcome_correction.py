@@ -8,7 +8,8 @@ step-0 velocity and spin in the frame of its travel, I_zz / m) and where the rol
 displacement along and across the travel, its turn about the vertical, and its last velocities), and gives
 the truth minus that resting pose, trained on thousands of shapes' pushes, half of each batch mirrored
 across its travel. One network per seed, averaged. Measured in docs/ablations.md ("Correcting where the
-push ends").
+push ends"), where richer inputs (the roll-out's state early in the impact, how long and how far it moved,
+the centre of mass's height) were tried and not kept.
 
 The correction is spread over the trajectory in proportion to the roll-out's own progress (the fraction of
 its horizontal path, and of its turning, covered by each step), so the path stays smooth, starts where it
@@ -46,9 +47,9 @@ EXTRA_STEPS = 15    # fitting rolls each push out this far past its truth's end,
 class OutcomeNet(torch.nn.Module):
     """Standardised inputs (B, 13) -> standardised corrections (B, 3): two hidden layers."""
 
-    def __init__(self, width: int = 256):
+    def __init__(self, width: int = 256, inputs: int = INPUTS):
         super().__init__()
-        self.layers = torch.nn.Sequential(torch.nn.Linear(INPUTS, width), torch.nn.ReLU(), torch.nn.Linear(width, width),
+        self.layers = torch.nn.Sequential(torch.nn.Linear(inputs, width), torch.nn.ReLU(), torch.nn.Linear(width, width),
                                           torch.nn.ReLU(), torch.nn.Linear(width, len(TARGETS)))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -187,55 +188,8 @@ def correct_rollout(model: Any, states: dict[str, np.ndarray], v0: np.ndarray, w
 
 
 # --------------------------------------------------------------------------------------------------
-# Fitting
+# Training (the roll-outs it learns from: physdyn/eval/outcome_fit.py)
 # --------------------------------------------------------------------------------------------------
-def store_outcomes(model: Any, stores: list[Any], chunk: int = 2048,
-                   progress: Callable[[int, int], None] | None = None) -> dict[str, np.ndarray]:
-    """Every non-toppling push of ``stores`` rolled out by ``model`` (without any correction it holds) to
-    ``EXTRA_STEPS`` past its truth's end: raw inputs (P, 13), targets (P, 3) truth minus roll-out at rest,
-    split (P,), shape (P,) (numbered across stores), rests (P,) whether the roll-out came to rest."""
-    from physdyn.data.windows import store_spin_inertia, store_world_inertia
-    from physdyn.eval.rollout import rollout
-
-    saved, model.outcome_correction = getattr(model, "outcome_correction", None), None
-    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("inputs", "targets", "split", "shape", "rests")}
-    try:
-        offset, done = 0, 0
-        total = sum(int((s.topple_step < 0).sum()) for s in stores)
-        for store in stores:
-            sims = np.flatnonzero(store.topple_step < 0)
-            lengths = store.lengths()
-            for part in np.array_split(sims, max(1, -(-len(sims) // chunk))):
-                if not len(part):
-                    continue
-                first, last = store.start[part], store.start[part] + lengths[part] - 1
-                q0, p0 = store.orientation_xyzw[first], store.com_position[first]
-                v0, w0 = store.linear_velocity[first], store.angular_velocity[first]
-                spin = store_spin_inertia(store, part, q0)
-                out = rollout(model, store.points[store.shape_id[part]], q0, p0, v0, w0,
-                              int(lengths[part].max()) - 1 + EXTRA_STEPS, spin_inertia=spin,
-                              body_inertia=store_world_inertia(store, part, q0))
-                p, q = out.com_position[:, -1], out.orientation_xyzw[:, -1]
-                v, w = out.linear_velocity[:, -1], out.angular_velocity[:, -1]
-                inputs, turn = outcome_inputs(v0, w0, spin, p0, q0, p, q, v, w)
-                truth = resting_state(turn, p0, q0, store.com_position[last], store.orientation_xyzw[last],
-                                      store.linear_velocity[last], store.angular_velocity[last])
-                target = truth[:, 3:] - inputs[:, 9:12]
-                target[:, 2] = wrap(target[:, 2])
-                parts["inputs"].append(inputs)
-                parts["targets"].append(target)
-                parts["split"].append(np.asarray(store.split[part], dtype=np.int64))
-                parts["shape"].append(store.shape_id[part].astype(np.int64) + offset)
-                parts["rests"].append((np.linalg.norm(v, axis=1) < REST_SPEED) & (np.linalg.norm(w, axis=1) < REST_SPIN))
-                done += len(part)
-                if progress is not None:
-                    progress(done, total)
-            offset += store.num_shapes
-    finally:
-        model.outcome_correction = saved
-    return {k: np.concatenate(v) for k, v in parts.items()}
-
-
 def train_outcome_network(inputs: np.ndarray, targets: np.ndarray, train: np.ndarray, val: np.ndarray,
                           steps: int = 6000, batch: int = 1024, width: int = 256, seed: int = 0,
                           progress: Callable[[int, float], None] | None = None) -> dict[str, Any]:
@@ -251,7 +205,7 @@ def train_outcome_network(inputs: np.ndarray, targets: np.ndarray, train: np.nda
     xm = torch.tensor((inputs * MIRROR_INPUTS - mu) / sd, dtype=torch.float32)
     y = torch.tensor((targets - ymu) / ysd, dtype=torch.float32)
     ym = torch.tensor((targets * MIRROR_TARGETS - ymu) / ysd, dtype=torch.float32)
-    net = OutcomeNet(width)
+    net = OutcomeNet(width, inputs.shape[1])
     opt = torch.optim.AdamW(net.parameters(), lr=1e-3, weight_decay=1e-4)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=1e-3, total_steps=steps, pct_start=max(0.05, 2.0 / steps))
     train_t, val_t = torch.tensor(train), torch.tensor(val)
@@ -275,36 +229,3 @@ def train_outcome_network(inputs: np.ndarray, targets: np.ndarray, train: np.nda
                 progress(step + 1, error)
     return {"state_dict": best_state, "inputs_mean": mu, "inputs_std": sd, "targets_mean": ymu, "targets_std": ysd,
             "val_error": best, "seconds": time.time() - started}
-
-
-def fit_outcome_correction(model: Any, stores: list[Any], seeds: tuple[int, ...] = (0,), steps: int = 6000,
-                           batch: int = 1024, width: int = 256, progress: Callable[[str], None] | None = None,
-                           ) -> tuple[OutcomeCorrection, dict[str, Any]]:
-    """One network per seed on the stores' non-toppling training pushes whose roll-out by ``model`` comes to
-    rest, each chosen on the validation split's; the ensemble and a report: the median error of the resting
-    position and turn on each split, the model's own and corrected."""
-    say = progress or (lambda _: None)
-    data = store_outcomes(model, stores, progress=lambda done, total: say(f"rolled out {done}/{total} pushes"))
-    usable = data["rests"]
-    train, val = np.flatnonzero(usable & (data["split"] == 0)), np.flatnonzero(usable & (data["split"] == 1))
-    if not len(train) or not len(val):
-        raise ValueError(f"{len(train)} training and {len(val)} validation pushes come to rest without toppling; "
-                         "fit on stores with both splits")
-    runs = [train_outcome_network(data["inputs"], data["targets"], train, val, steps, batch, width, seed,
-                                  lambda step, error, s=seed: say(f"network {s}: step {step}/{steps}, validation error {error:.3f}"))
-            for seed in seeds]
-    first = runs[0]  # one standardisation: every run's is the training split's, the same numbers
-    correction = OutcomeCorrection([r["state_dict"] for r in runs], first["inputs_mean"], first["inputs_std"],
-                                   first["targets_mean"], first["targets_std"], width)
-    report: dict[str, Any] = {"train_pushes": int(len(train)), "val_pushes": int(len(val)),
-                              "not_at_rest": int((~usable).sum()), "splits": {}}
-    for name, split in (("train", 0), ("validation", 1), ("test", 2)):
-        idx = np.flatnonzero(usable & (data["split"] == split))
-        if not len(idx):
-            continue
-        y = data["targets"][idx]
-        rest = y - correction.correction(data["inputs"][idx])
-        report["splits"][name] = {"pushes": int(len(idx)),
-                                  "position_cm": [100 * float(np.median(np.hypot(a[:, 0], a[:, 1]))) for a in (y, rest)],
-                                  "yaw_deg": [float(np.degrees(np.median(np.abs(wrap(a[:, 2]))))) for a in (y, rest)]}
-    return correction, report

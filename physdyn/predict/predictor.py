@@ -412,9 +412,9 @@ def contact_prior_predictor(physics: Any = None, rate_hz: float = 15.0, num_poin
 
 
 def load_predictor(checkpoint: Any = None, physics: Any = None, device: str = "cpu") -> Predictor:
-    """A ``Predictor`` from a `physdyn fit` checkpoint path, a loaded ``DynamicsModel``, or (None) the
-    model bundled with physdyn, on ``device`` (cpu, cuda or auto). Raises a one-line ``PhysdynError`` for
-    anything else."""
+    """A ``Predictor`` from a `physdyn fit` checkpoint path, a loaded ``DynamicsModel``, a shipped model's
+    name ("fast": nothing simulated, docs/model-card.md; "bundled"), or (None) the model bundled with
+    physdyn, on ``device`` (cpu, cuda or auto). Raises a one-line ``PhysdynError`` for anything else."""
 
     if checkpoint is None:
         if not BUNDLED_CHECKPOINT.is_file():

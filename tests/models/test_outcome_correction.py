@@ -10,10 +10,12 @@ import torch
 import trimesh
 
 from physdyn.data.store import load_store
+from physdyn.eval.outcome_fit import fit_outcome_correction
 from physdyn.geometry.rotations import quat_multiply, rotvec_to_quat
 from physdyn.models.outcome_correction import (MIRROR_INPUTS, MIRROR_TARGETS, OutcomeCorrection, OutcomeNet,
-                                               fit_outcome_correction, outcome_inputs, yaw_of)
+                                               outcome_inputs, yaw_of)
 from physdyn.predict.predictor import contact_prior_predictor
+from tests.conftest import refuse_pybullet
 
 
 @pytest.fixture(scope="module")
@@ -117,15 +119,30 @@ def test_fit_outcome_writes_a_checkpoint_that_predicts_with_no_simulator(tiny_hu
     assert predictor.model.outcome_correction is not None
     box = trimesh.creation.box((0.08, 0.05, 0.04))
     predictor.predict(box.copy(), [0.5, 0.0, 0.0], [0.0, 0.0, 0.0], seconds=0.2)  # imports done, mesh prepared
-    import pybullet
-
-    def refuse(*args, **kwargs):
-        raise AssertionError("PyBullet ran inside the prediction")
-
-    for name in ("connect", "stepSimulation"):
-        monkeypatch.setattr(pybullet, name, refuse)
+    refuse_pybullet(monkeypatch)
     mine = predictor.predict(box, [0.8, 0.2, 0.0], [0.0, 0.0, 4.0], seconds=2.0)
     theirs = prior.predict(box, [0.8, 0.2, 0.0], [0.0, 0.0, 4.0], seconds=2.0)
     np.testing.assert_allclose(mine["com_position"][0], theirs["com_position"][0])
     assert not np.allclose(mine["com_position"][-1], theirs["com_position"][-1], atol=1e-5)
     assert np.isfinite(mine["com_position"]).all() and np.isfinite(mine["linear_velocity"]).all()
+
+
+def test_the_shipped_fast_model_simulates_nothing_and_a_file_of_its_name_comes_first(tmp_path, monkeypatch):
+    from physdyn.errors import CheckpointError
+    from physdyn.models.checkpoint_file import read_checkpoint
+    from physdyn.predict.predictor import load_predictor
+
+    predictor = load_predictor("fast")
+    model = predictor.model
+    assert model.outcome_correction is not None and type(model.topple_classifier).__name__ == "PointNetToppleClassifier"
+    assert predictor.points_method == "hull_surface" and model.config.model.sim_seconds == 0
+    box = trimesh.creation.box((0.1, 0.06, 0.04))
+    predictor.predict(box.copy(), [0.5, 0.0, 0.0], [0.0, 0.0, 0.0], seconds=0.2)  # imports done, mesh prepared
+    refuse_pybullet(monkeypatch)
+    result = predictor.predict(box, [0.8, 0.1, 0.0], [0.0, 0.0, 3.0], seconds=2.0)
+    assert not result["toppled"] and 0.05 < np.linalg.norm(result["com_position"][-1, :2] - result["com_position"][0, :2]) < 0.5
+    # a file called "fast" where the user is wins over the shipped model's name
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "fast").write_text("not a checkpoint")
+    with pytest.raises(CheckpointError, match="fast is not a PyTorch checkpoint"):
+        read_checkpoint("fast")

@@ -13,6 +13,7 @@ from physdyn.data.store import load_store
 from physdyn.geometry.rotations import quat_to_matrix
 from physdyn.models.topple_pointnet import (MIRROR_SCALARS, PointNetToppleClassifier, fit_pointnet_topple,
                                             store_training_set, stores_first_frames, travel_scalars, travel_turn)
+from tests.conftest import refuse_pybullet
 
 
 @pytest.fixture(scope="module")
@@ -106,13 +107,7 @@ def test_a_model_with_it_predicts_toppling_with_no_simulator(fitted, tiny_store,
     predictor.predict(box.copy(), [0.5, 0.0, 0.0], [0.0, 0.0, 0.0], seconds=0.2)  # imports done, mesh prepared
     # PyBullet refuses to run from here on: any simulation in the prediction would fail, as the simulator
     # beside the model shows
-    import pybullet
-
-    def refuse(*args, **kwargs):
-        raise AssertionError("PyBullet ran inside the prediction")
-
-    for name in ("connect", "stepSimulation"):
-        monkeypatch.setattr(pybullet, name, refuse)
+    refuse_pybullet(monkeypatch)
     with pytest.raises(AssertionError, match="PyBullet ran"):
         predictor.predict(box, [1.0, 0.0, 0.0], [0.0, 0.0, 0.0], seconds=0.5, compare_sim=True)
     results = predictor.predict_many([box, box], [[1.5, 0.0, 0.0], [0.3, 0.0, 0.0]], [[0.0, 6.0, 0.0], [0.0, 0.0, 1.0]],

@@ -1,0 +1,92 @@
+"""Fitting ``physdyn fit-outcome``'s correction: the model rolled out on a store's pushes (eval's roll-out),
+then ``physdyn.models.outcome_correction.train_outcome_network`` per seed."""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import numpy as np
+
+from physdyn.data.windows import store_spin_inertia, store_world_inertia
+from physdyn.eval.rollout import rollout
+from physdyn.models.outcome_correction import (EXTRA_STEPS, REST_SPEED, REST_SPIN, OutcomeCorrection, outcome_inputs,
+                                               resting_state, train_outcome_network, wrap)
+
+
+def store_outcomes(model: Any, stores: list[Any], chunk: int = 2048,
+                   progress: Callable[[int, int], None] | None = None) -> dict[str, np.ndarray]:
+    """Every non-toppling push of ``stores`` rolled out by ``model`` (without any correction it holds) to
+    ``EXTRA_STEPS`` past its truth's end: raw inputs (P, INPUTS), targets (P, 3) truth minus roll-out at rest,
+    split (P,), shape (P,) (numbered across stores), rests (P,) whether the roll-out came to rest."""
+    # Neither the correction being replaced nor a topple classifier (its probabilities move nothing) is rolled out
+    saved = getattr(model, "outcome_correction", None), getattr(model, "topple_classifier", None)
+    model.outcome_correction = model.topple_classifier = None
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("inputs", "targets", "split", "shape", "rests")}
+    try:
+        offset, done = 0, 0
+        total = sum(int((s.topple_step < 0).sum()) for s in stores)
+        for store in stores:
+            sims = np.flatnonzero(store.topple_step < 0)
+            lengths = store.lengths()
+            for part in np.array_split(sims, max(1, -(-len(sims) // chunk))):
+                if not len(part):
+                    continue
+                first, last = store.start[part], store.start[part] + lengths[part] - 1
+                q0, p0 = store.orientation_xyzw[first], store.com_position[first]
+                v0, w0 = store.linear_velocity[first], store.angular_velocity[first]
+                spin = store_spin_inertia(store, part, q0)
+                out = rollout(model, store.points[store.shape_id[part]], q0, p0, v0, w0,
+                              int(lengths[part].max()) - 1 + EXTRA_STEPS, spin_inertia=spin,
+                              body_inertia=store_world_inertia(store, part, q0))
+                p, q = out.com_position[:, -1], out.orientation_xyzw[:, -1]
+                v, w = out.linear_velocity[:, -1], out.angular_velocity[:, -1]
+                inputs, turn = outcome_inputs(v0, w0, spin, p0, q0, p, q, v, w)
+                truth = resting_state(turn, p0, q0, store.com_position[last], store.orientation_xyzw[last],
+                                      store.linear_velocity[last], store.angular_velocity[last])
+                target = truth[:, 3:] - inputs[:, 9:12]
+                target[:, 2] = wrap(target[:, 2])
+                parts["inputs"].append(inputs)
+                parts["targets"].append(target)
+                parts["split"].append(np.asarray(store.split[part], dtype=np.int64))
+                parts["shape"].append(store.shape_id[part].astype(np.int64) + offset)
+                parts["rests"].append((np.linalg.norm(v, axis=1) < REST_SPEED) & (np.linalg.norm(w, axis=1) < REST_SPIN))
+                done += len(part)
+                if progress is not None:
+                    progress(done, total)
+            offset += store.num_shapes
+    finally:
+        model.outcome_correction, model.topple_classifier = saved
+    return {k: np.concatenate(v) for k, v in parts.items()}
+
+
+def fit_outcome_correction(model: Any, stores: list[Any], seeds: tuple[int, ...] = (0,), steps: int = 6000,
+                           batch: int = 1024, width: int = 256, progress: Callable[[str], None] | None = None,
+                           ) -> tuple[OutcomeCorrection, dict[str, Any]]:
+    """One network per seed on the stores' non-toppling training pushes whose roll-out by ``model`` comes to
+    rest, each chosen on the validation split's; the ensemble and a report: the median error of the resting
+    position and turn on each split, the model's own and corrected."""
+    say = progress or (lambda _: None)
+    data = store_outcomes(model, stores, progress=lambda done, total: say(f"rolled out {done}/{total} pushes"))
+    usable = data["rests"]
+    train, val = np.flatnonzero(usable & (data["split"] == 0)), np.flatnonzero(usable & (data["split"] == 1))
+    if not len(train) or not len(val):
+        raise ValueError(f"{len(train)} training and {len(val)} validation pushes come to rest without toppling; "
+                         "fit on stores with both splits")
+    runs = [train_outcome_network(data["inputs"], data["targets"], train, val, steps, batch, width, seed,
+                                  lambda step, error, s=seed: say(f"network {s}: step {step}/{steps}, validation error {error:.3f}"))
+            for seed in seeds]
+    first = runs[0]  # one standardisation: every run's is the training split's, the same numbers
+    correction = OutcomeCorrection([r["state_dict"] for r in runs], first["inputs_mean"], first["inputs_std"],
+                                   first["targets_mean"], first["targets_std"], width)
+    report: dict[str, Any] = {"train_pushes": int(len(train)), "val_pushes": int(len(val)),
+                              "not_at_rest": int((~usable).sum()), "splits": {}}
+    for name, split in (("train", 0), ("validation", 1), ("test", 2)):
+        idx = np.flatnonzero(usable & (data["split"] == split))
+        if not len(idx):
+            continue
+        y = data["targets"][idx]
+        rest = y - correction.correction(data["inputs"][idx])
+        report["splits"][name] = {"pushes": int(len(idx)),
+                                  "position_cm": [100 * float(np.median(np.hypot(a[:, 0], a[:, 1]))) for a in (y, rest)],
+                                  "yaw_deg": [float(np.degrees(np.median(np.abs(wrap(a[:, 2]))))) for a in (y, rest)]}
+    return correction, report
