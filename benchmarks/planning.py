@@ -91,7 +91,7 @@ def main() -> None:
     store = external_store(Path(args.work), args.random, args.pushes)
     goals = goals_from_store(store, args.goals)
     predictor = load_predictor(args.checkpoint)
-    for path in args.screen_checkpoint:  # the same search, another screen (it shares the mesh's preparation)
+    for path in args.screen_checkpoint:  # the same search, another screen (handed the body the planner prepared)
         name = f"physdyn ({Path(path).stem} screen, PyBullet 1/240 s ranks, check)"
         PLANNERS[name] = {"screen": load_predictor(path)}
         args.planners.append(name)

@@ -16,7 +16,7 @@ PRIOR = "contact_prior"
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "fit-outcome",
-        help="fit a correction of where each push comes to rest into a checkpoint (no simulator; about a minute)",
+        help="fit a correction of where each push comes to rest into a checkpoint (minutes; nothing simulated at prediction)",
         description=(
             "Roll the model out on every non-toppling push of the --data stores, then train small networks "
             "that read the push (step-0 velocity and spin in the frame of its travel, I_zz / m) and where the "

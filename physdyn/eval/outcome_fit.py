@@ -8,6 +8,7 @@ from typing import Any, Callable
 import numpy as np
 
 from physdyn.data.windows import store_spin_inertia, store_world_inertia
+from physdyn.errors import PhysdynError
 from physdyn.eval.rollout import rollout
 from physdyn.models.outcome_correction import (EXTRA_STEPS, REST_SPEED, REST_SPIN, OutcomeCorrection, outcome_inputs,
                                                resting_state, train_outcome_network, wrap)
@@ -22,6 +23,9 @@ def store_outcomes(model: Any, stores: list[Any], chunk: int = 2048,
     saved = getattr(model, "outcome_correction", None), getattr(model, "topple_classifier", None)
     model.outcome_correction = model.topple_classifier = None
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("inputs", "targets", "split", "shape", "rests")}
+    if not any((s.topple_step < 0).any() for s in stores):
+        raise PhysdynError("every push of the --data stores topples; the correction learns where pushes that do not "
+                           "topple come to rest: fit on stores that have some")
     try:
         offset, done = 0, 0
         total = sum(int((s.topple_step < 0).sum()) for s in stores)
@@ -70,8 +74,9 @@ def fit_outcome_correction(model: Any, stores: list[Any], seeds: tuple[int, ...]
     usable = data["rests"]
     train, val = np.flatnonzero(usable & (data["split"] == 0)), np.flatnonzero(usable & (data["split"] == 1))
     if not len(train) or not len(val):
-        raise ValueError(f"{len(train)} training and {len(val)} validation pushes come to rest without toppling; "
-                         "fit on stores with both splits")
+        raise PhysdynError(f"{len(train)} training and {len(val)} validation pushes of the --data stores come to rest "
+                           "without toppling in the model's roll-out; fit-outcome needs some of both (more or longer "
+                           "pushes, or stores with both splits)")
     runs = [train_outcome_network(data["inputs"], data["targets"], train, val, steps, batch, width, seed,
                                   lambda step, error, s=seed: say(f"network {s}: step {step}/{steps}, validation error {error:.3f}"))
             for seed in seeds]

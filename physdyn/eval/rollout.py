@@ -19,6 +19,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from physdyn.data.windows import DELTA_KEYS, relative_rotation, world_oriented_points
+from physdyn.eval.metrics import TOPPLE_THRESHOLD
 from physdyn.geometry.rotations import quat_multiply, quat_to_matrix, rotvec_to_quat, tilt_angle, world_delta_rotvec
 
 STATE_KEYS = ("com_position", "orientation_xyzw", "linear_velocity", "angular_velocity")
@@ -160,6 +161,7 @@ def rollout(
     topple_points_body: np.ndarray | None = None,
     spin_inertia: np.ndarray | None = None,
     body_inertia: np.ndarray | None = None,
+    lengths: np.ndarray | None = None,
 ) -> RolloutResult:
     """Roll a predictor out for ``steps`` transitions from the state at step 0, B sequences at once.
 
@@ -179,7 +181,9 @@ def rollout(
     and for an outcome correction (``physdyn fit-outcome``; without it or ``body_inertia``, estimated from
     the cloud).
     A model with an ``outcome_correction`` has the resting pose of each push that comes to rest without
-    toppling corrected, the correction spread over its trajectory (``physdyn.models.outcome_correction``).
+    toppling corrected, the correction spread over its trajectory (``physdyn.models.outcome_correction``);
+    ``lengths`` (B,): each sequence's own number of states (steps + 1) where a batch is padded to its longest,
+    so that each is judged at its own end, as alone.
     body_inertia: optional (B, 3, 3) I / m of each body in world axes at step 0, for a topple classifier
     that simulates the cloud's hull (``fit-topple --physics``; ``physdyn.geometry.mass.world_inertia_per_mass``)
     and for ``model.sim_seconds``; without it those roll-outs take the hull's inertia.
@@ -251,9 +255,15 @@ def rollout(
     if getattr(model, "outcome_correction", None) is not None:  # fit-outcome: where the push ends, learned
         from physdyn.models.outcome_correction import correct_rollout  # torch: only for models that have one
 
+        if probability is not None:
+            toppled = (probability >= TOPPLE_THRESHOLD).any(axis=1)
+        else:  # no topple output: the conventions' rule on the roll-out's own poses
+            from physdyn.sim.trajectory import TOPPLE_ANGLE
+
+            toppled = (tilt_angle(q0[:, None], states["orientation_xyzw"]) > TOPPLE_ANGLE).any(axis=1)
         states = {**states, **{k: np.array(v) for k, v in deltas.items()}}
         correct_rollout(model, states, _numpy(lin_vel0).reshape(B, 3), _numpy(ang_vel0).reshape(B, 3), given_spin_inertia,
-                        points, probability)
+                        points, toppled, lengths)
         deltas = {k: states.pop(k) for k in DELTA_KEYS}
     return RolloutResult(**states, topple_probability=probability, **deltas, fed_linear_velocity=fed_v,
                          fed_angular_velocity=fed_w)

@@ -37,9 +37,14 @@ SHIPPED = {"bundled": ASSETS / "bundled.ckpt", "fast": ASSETS / "fast.ckpt"}
 
 
 def shipped_or_path(path: str | Path) -> Path:
-    """``path``, or the shipped model of that name when no such file exists."""
-    if str(path) in SHIPPED and not Path(path).exists():
-        return SHIPPED[str(path)]
+    """``path``, or the shipped model of that name when no such file exists (a one-line error when this
+    installation lacks it)."""
+    if str(path) in SHIPPED and not Path(path).is_file():
+        shipped = SHIPPED[str(path)]
+        if not shipped.is_file():
+            raise CheckpointError(f"no shipped model '{path}' in this installation ({shipped} is missing); reinstall "
+                                  "physdyn, or pass a checkpoint of `physdyn fit`")
+        return shipped
     return Path(path)
 
 

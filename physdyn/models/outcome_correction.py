@@ -117,31 +117,43 @@ class OutcomeCorrection:
         return h.mean(axis=0) * self.targets_std + self.targets_mean
 
     def apply(self, states: dict[str, np.ndarray], v0: np.ndarray, w0: np.ndarray, spin_inertia: np.ndarray,
-              dt: float, toppled: np.ndarray | None = None) -> np.ndarray:
+              dt: float, toppled: np.ndarray | None = None, lengths: np.ndarray | None = None) -> np.ndarray:
         """Correct ``states`` (``com_position`` (B, T, 3), ``orientation_xyzw`` (B, T, 4), ``linear_velocity``,
-        ``angular_velocity``) in place where the roll-out rests at its last step and has not ``toppled``
-        (B,). Returns which rows it corrected (B,)."""
+        ``angular_velocity``, one step every ``dt`` s) in place where a push rests at its own last step and has
+        not ``toppled`` (B,). ``lengths`` (B,): each push's own number of steps (default T), for roll-outs
+        padded to the longest of a batch: a push is judged at its own end, as it would be alone, and past it
+        takes the whole correction. The step-0 velocities stay as given. Returns which rows it corrected (B,)."""
         p, q = states["com_position"], states["orientation_xyzw"]
         v, w = states["linear_velocity"], states["angular_velocity"]
         B, T = p.shape[:2]
-        rows = (np.linalg.norm(v[:, -1], axis=1) < REST_SPEED) & (np.linalg.norm(w[:, -1], axis=1) < REST_SPIN)
-        if toppled is not None:
-            rows &= ~np.asarray(toppled, dtype=bool)
-        if T < 2 or not rows.any():
-            return np.zeros(B, dtype=bool) if T < 2 else rows
-        idx = np.flatnonzero(rows)
-        inputs, turn = outcome_inputs(v0[idx], w0[idx], spin_inertia[idx], p[idx, 0], q[idx, 0], p[idx, -1], q[idx, -1],
-                                      v[idx, -1], w[idx, -1])
-        fix = self.correction(inputs)
-        shift = fix[:, 0:1] * turn[:, 0, :2] + fix[:, 1:2] * turn[:, 1, :2]  # (b, 2) world, horizontal
-        along = _progress(np.linalg.norm(np.diff(p[idx, :, :2], axis=1), axis=-1))
-        turned = _progress(np.abs(wrap(np.diff(yaw_of(quat_multiply(q[idx], quat_conjugate(q[idx, :1]))), axis=1))))
-        p[idx, :, :2] += along[..., None] * shift[:, None, :]
-        v[idx, :, :2] += np.gradient(along, dt, axis=1)[..., None] * shift[:, None, :]
-        spin = turned * fix[:, 2:3]  # (b, T) radians about the world vertical through the centre of mass
-        q[idx] = quat_multiply(rotvec_to_quat(spin[..., None] * np.array([0.0, 0.0, 1.0])), q[idx])
-        w[idx, :, 2] += np.gradient(turned, dt, axis=1) * fix[:, 2:3]
-        return rows
+        lengths = np.full(B, T) if lengths is None else np.minimum(np.asarray(lengths, dtype=np.int64), T)
+        corrected = np.zeros(B, dtype=bool)
+        for L in np.unique(lengths):
+            rows = np.flatnonzero(lengths == L)
+            if L < 2:
+                continue
+            rests = (np.linalg.norm(v[rows, L - 1], axis=1) < REST_SPEED) & (np.linalg.norm(w[rows, L - 1], axis=1) < REST_SPIN)
+            if toppled is not None:
+                rests &= ~np.asarray(toppled, dtype=bool)[rows]
+            idx = rows[rests]
+            if not len(idx):
+                continue
+            corrected[idx] = True
+            inputs, turn = outcome_inputs(v0[idx], w0[idx], spin_inertia[idx], p[idx, 0], q[idx, 0], p[idx, L - 1],
+                                          q[idx, L - 1], v[idx, L - 1], w[idx, L - 1])
+            fix = self.correction(inputs)
+            shift = fix[:, 0:1] * turn[:, 0, :2] + fix[:, 1:2] * turn[:, 1, :2]  # (b, 2) world, horizontal
+            moved = np.linalg.norm(np.diff(p[idx, :L, :2], axis=1), axis=-1)
+            turns = np.abs(wrap(np.diff(yaw_of(quat_multiply(q[idx, :L], quat_conjugate(q[idx, :1]))), axis=1)))
+            whole = np.ones((len(idx), T - L))  # past its own end, the whole correction
+            along = np.concatenate([_progress(moved, turns), whole], axis=1)
+            turned = np.concatenate([_progress(turns, moved), whole], axis=1)
+            p[idx, :, :2] += along[..., None] * shift[:, None, :]
+            v[idx, :, :2] += _rate(along, dt)[..., None] * shift[:, None, :]
+            spin = turned * fix[:, 2:3]  # (b, T) radians about the world vertical through the centre of mass
+            q[idx] = quat_multiply(rotvec_to_quat(spin[..., None] * np.array([0.0, 0.0, 1.0])), q[idx])
+            w[idx, :, 2] += _rate(turned, dt) * fix[:, 2:3]
+        return corrected
 
     def to_dict(self) -> dict[str, Any]:
         # tensors, lists and numbers only: checkpoints are read without running code (docs/security.md)
@@ -158,27 +170,45 @@ class OutcomeCorrection:
                    np.asarray(d["targets_mean"]), np.asarray(d["targets_std"]), int(d["width"]))
 
 
-def _progress(step_sizes: np.ndarray) -> np.ndarray:
-    """(b, T-1) non-negative step sizes -> (b, T) the fraction covered by each step, 0 at the first and 1 at
-    the last (a straight ramp where nothing moved)."""
-    b, s = step_sizes.shape
-    covered = np.concatenate([np.zeros((b, 1)), np.cumsum(step_sizes, axis=1)], axis=1)
-    total = covered[:, -1:]
-    ramp = np.broadcast_to(np.linspace(0.0, 1.0, s + 1), covered.shape)
-    return np.where(total > 1e-12, covered / np.maximum(total, 1e-12), ramp)
+def _progress(step_sizes: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """(b, L-1) non-negative step sizes -> (b, L) the fraction covered by each step, 0 at the first and 1 at
+    the last; where nothing moved, that of ``fallback`` (the path for a turn, the turn for a path), and where
+    neither did, all of it at step 1."""
+    def covered(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        c = np.concatenate([np.zeros((len(x), 1)), np.cumsum(x, axis=1)], axis=1)
+        return c, c[:, -1:]
+
+    own, own_total = covered(step_sizes)
+    other, other_total = covered(fallback)
+    at_once = np.ones_like(own)
+    at_once[:, 0] = 0.0
+    return np.where(own_total > 1e-12, own / np.maximum(own_total, 1e-12),
+                    np.where(other_total > 1e-12, other / np.maximum(other_total, 1e-12), at_once))
+
+
+def _rate(fraction: np.ndarray, dt: float) -> np.ndarray:
+    """d fraction / dt (b, T): central differences, backward at the last step, and 0 at step 0, whose velocity
+    is the one the caller gave."""
+    rate = np.zeros_like(fraction)
+    if fraction.shape[1] > 2:
+        rate[:, 1:-1] = (fraction[:, 2:] - fraction[:, :-2]) / (2.0 * dt)
+    if fraction.shape[1] > 1:
+        rate[:, -1] = (fraction[:, -1] - fraction[:, -2]) / dt
+    return rate
 
 
 def correct_rollout(model: Any, states: dict[str, np.ndarray], v0: np.ndarray, w0: np.ndarray,
-                    spin_inertia: np.ndarray | None, points_world: np.ndarray, probability: np.ndarray | None) -> None:
-    """Apply ``model.outcome_correction`` (if any) to a roll-out's ``states`` in place, and make its
-    ``delta_*`` (if present) the corrected states' steps. Toppled: any per-step probability >= 0.5."""
+                    spin_inertia: np.ndarray | None, points_world: np.ndarray, toppled: np.ndarray,
+                    lengths: np.ndarray | None = None) -> None:
+    """Apply ``model.outcome_correction`` (if any) to a roll-out's ``states`` in place (``OutcomeCorrection.apply``;
+    ``toppled`` (B,): the roll-out's own verdict), and make its ``delta_*`` (if present) the corrected states'
+    steps."""
     correction = getattr(model, "outcome_correction", None)
     if correction is None:
         return
     spin = cloud_spin_inertia(points_world) if spin_inertia is None else np.asarray(spin_inertia, dtype=np.float64)
-    toppled = None if probability is None else (np.asarray(probability) >= 0.5).any(axis=1)
     rows = correction.apply(states, np.asarray(v0, dtype=np.float64).reshape(-1, 3),
-                            np.asarray(w0, dtype=np.float64).reshape(-1, 3), spin, float(model.prior_dt), toppled)
+                            np.asarray(w0, dtype=np.float64).reshape(-1, 3), spin, float(model.prior_dt), toppled, lengths)
     if rows.any() and "delta_position" in states:
         states["delta_position"][rows] = np.diff(states["com_position"][rows], axis=1)
         states["delta_linear_velocity"][rows] = np.diff(states["linear_velocity"][rows], axis=1)

@@ -28,11 +28,14 @@ def fitted(tiny_hull_store):
 
 def test_it_learns_where_the_prior_ends_wrong(fitted):
     store, correction, report = fitted
-    train = report["splits"]["train"]
-    assert train["pushes"] == report["train_pushes"] > 30
-    before, after = train["position_cm"]
-    assert after < 0.8 * before, (before, after)  # the training pushes' resting positions, learned
-    assert len(correction.networks) == 1 and set(report["splits"]) >= {"train", "validation"}
+    train, held = report["splits"]["train"], report["splits"]["validation"]
+    assert train["pushes"] == report["train_pushes"] > 30 and held["pushes"] > 10
+    # where the pushes rest, closer than the prior's, on the training shapes and on shapes it never trained on
+    # (seeds 0-2 of this fit: 0.78-0.87 and 0.80-0.83 of the prior's error)
+    for split in (train, held):
+        before, after = split["position_cm"]
+        assert after < 0.9 * before, (before, after)
+    assert len(correction.networks) == 1
 
 
 def test_the_inputs_mirror_as_the_training_assumes():
@@ -65,34 +68,60 @@ def constant_correction(along: float, across: float, turn: float) -> OutcomeCorr
     return OutcomeCorrection([net.state_dict()], np.zeros(13), np.ones(13), np.zeros(3), np.ones(3), width=8)
 
 
-def test_it_moves_the_end_and_spreads_the_change_over_the_path():
-    dt, T = 1 / 15, 12
-    # three pushes along +y, sliding to rest by step 8 and turning; the third is still moving at the end
-    t = np.minimum(np.arange(T), 8) / 8.0
+def sliding_rows(T: int = 12, rest: int = 8, turn: float = 0.6) -> dict[str, np.ndarray]:
+    """Three pushes along +y, sliding to rest by step ``rest`` and turning by ``turn``; the third still
+    moving at its last step."""
+    dt = 1 / 15
+    t = np.minimum(np.arange(T), rest) / rest
     path = np.stack([np.zeros(T), 0.2 * (2 * t - t * t), np.full(T, 0.05)], axis=1)
     p = np.repeat(path[None], 3, axis=0)
-    q = rotvec_to_quat(np.repeat((0.6 * t)[None, :, None] * np.array([0.0, 0.0, 1.0]), 3, axis=0))
+    q = rotvec_to_quat(np.repeat((turn * t)[None, :, None] * np.array([0.0, 0.0, 1.0]), 3, axis=0))
     v = np.gradient(p, dt, axis=1)
-    v[:, 8:] = 0.0
-    w = np.zeros((3, T, 3))
+    v[:, rest:] = 0.0
     v[2, -1] = [0.0, 0.3, 0.0]
-    states = {"com_position": p.copy(), "orientation_xyzw": q.copy(), "linear_velocity": v.copy(), "angular_velocity": w.copy()}
+    return {"com_position": p, "orientation_xyzw": q, "linear_velocity": v, "angular_velocity": np.zeros((3, T, 3))}
+
+
+def test_it_moves_the_end_and_spreads_the_change_over_the_path():
+    dt = 1 / 15
+    given = sliding_rows()
+    states = {k: a.copy() for k, a in given.items()}
     v0 = np.tile([0.0, 0.5, 0.0], (3, 1))
     rows = constant_correction(0.03, -0.01, 0.2).apply(states, v0, np.zeros((3, 3)), np.full(3, 1e-3), dt,
                                                       toppled=np.array([False, True, False]))
     np.testing.assert_array_equal(rows, [True, False, False])  # the toppled and the moving push are left alone
     for key in states:
-        np.testing.assert_array_equal(states[key][1:], {"com_position": p, "orientation_xyzw": q,
-                                                        "linear_velocity": v, "angular_velocity": w}[key][1:])
-    new = states["com_position"][0]
-    np.testing.assert_allclose(new[0], p[0, 0])  # the start stays
+        np.testing.assert_array_equal(states[key][1:], given[key][1:])
+    new, old = states["com_position"][0], given["com_position"][0]
+    np.testing.assert_allclose(new[0], old[0])  # the start stays, and so do the step-0 velocities
+    np.testing.assert_array_equal(states["linear_velocity"][0, 0], given["linear_velocity"][0, 0])
+    np.testing.assert_array_equal(states["angular_velocity"][0, 0], given["angular_velocity"][0, 0])
     # travel is +y: along +0.03 m is +y, across (+x turned left of the travel) -0.01 m is +x
-    np.testing.assert_allclose(new[-1] - p[0, -1], [0.01, 0.03, 0.0], atol=1e-12)
-    assert (np.diff(np.linalg.norm(new[:, :2] - p[0, :, :2], axis=1)) >= -1e-12).all()  # the change grows along the path
-    turn = yaw_of(quat_multiply(states["orientation_xyzw"][0], np.array([0.0, 0.0, 0.0, 1.0])))
+    np.testing.assert_allclose(new[-1] - old[-1], [0.01, 0.03, 0.0], atol=1e-12)
+    assert (np.diff(np.linalg.norm(new[:, :2] - old[:, :2], axis=1)) >= -1e-12).all()  # the change grows along the path
+    turn = yaw_of(states["orientation_xyzw"][0])
     assert turn[-1] == pytest.approx(0.6 + 0.2) and turn[0] == pytest.approx(0.0)
-    # at rest after the correction too: the velocity's change follows the path's
+    # at rest after the correction too, from the step after the roll-out's rest on
     np.testing.assert_allclose(states["linear_velocity"][0, 9:], 0.0, atol=1e-12)
+    np.testing.assert_allclose(states["angular_velocity"][0, 9:], 0.0, atol=1e-12)
+
+
+def test_a_roll_out_that_does_not_turn_turns_along_its_path_and_a_cut_one_is_judged_at_its_end():
+    dt = 1 / 15
+    given = sliding_rows(T=30, rest=8, turn=0.0)  # slides to rest by step 8 without turning
+    states = {k: a.copy() for k, a in given.items()}
+    correction = constant_correction(0.0, 0.0, 0.2)
+    rows = correction.apply(states, np.tile([0.0, 0.5, 0.0], (3, 1)), np.zeros((3, 3)), np.full(3, 1e-3), dt,
+                            lengths=np.array([30, 5, 20]))
+    # the first rests at its end; the second is cut at step 4, still sliding: left alone though the batch's
+    # roll-out rests by its end; the third is judged at its own last step (19), where it rests
+    np.testing.assert_array_equal(rows, [True, False, True])
+    np.testing.assert_array_equal(states["orientation_xyzw"][1], given["orientation_xyzw"][1])
+    turn = yaw_of(states["orientation_xyzw"][0])
+    np.testing.assert_allclose(turn[8:], 0.2, atol=1e-12)  # the whole turn by the time the path ends, not later
+    assert 0.0 < turn[4] < 0.2
+    np.testing.assert_allclose(states["angular_velocity"][0, 9:, 2], 0.0, atol=1e-12)
+    np.testing.assert_allclose(yaw_of(states["orientation_xyzw"][2]), turn, atol=1e-12)  # cut later, the same
 
 
 def test_fit_outcome_writes_a_checkpoint_that_predicts_with_no_simulator(tiny_hull_store, tiny_store, tmp_path,
@@ -129,7 +158,7 @@ def test_fit_outcome_writes_a_checkpoint_that_predicts_with_no_simulator(tiny_hu
 
 def test_the_shipped_fast_model_simulates_nothing_and_a_file_of_its_name_comes_first(tmp_path, monkeypatch):
     from physdyn.errors import CheckpointError
-    from physdyn.models.checkpoint_file import read_checkpoint
+    from physdyn.models.outcome_correction import outcome_inputs as inputs_of
     from physdyn.predict.predictor import load_predictor
 
     predictor = load_predictor("fast")
@@ -139,10 +168,38 @@ def test_the_shipped_fast_model_simulates_nothing_and_a_file_of_its_name_comes_f
     box = trimesh.creation.box((0.1, 0.06, 0.04))
     predictor.predict(box.copy(), [0.5, 0.0, 0.0], [0.0, 0.0, 0.0], seconds=0.2)  # imports done, mesh prepared
     refuse_pybullet(monkeypatch)
-    result = predictor.predict(box, [0.8, 0.1, 0.0], [0.0, 0.0, 3.0], seconds=2.0)
-    assert not result["toppled"] and 0.05 < np.linalg.norm(result["com_position"][-1, :2] - result["com_position"][0, :2]) < 0.5
-    # a file called "fast" where the user is wins over the shipped model's name
+    v0, w0 = np.array([0.8, 0.1, 0.0]), np.array([0.0, 0.0, 3.0])
+    mine = predictor.predict(box, v0, w0, seconds=2.0)
+    prior = contact_prior_predictor().predict(box, v0, w0, seconds=2.0)
+    assert not mine["toppled"]
+    np.testing.assert_allclose(mine["linear_velocity"][0], v0)  # the push as given
+    np.testing.assert_allclose(mine["angular_velocity"][0], w0)
+    # the end moved by what the correction says of the prior's resting state, along and across the travel
+    ends = [prior[k][None] for k in ("com_position", "orientation_xyzw", "linear_velocity", "angular_velocity")]
+    x, turn = inputs_of(v0[None], w0[None], np.atleast_1d(x_spin(box)), ends[0][:, 0], ends[1][:, 0], ends[0][:, -1],
+                        ends[1][:, -1], ends[2][:, -1], ends[3][:, -1])
+    fix = model.outcome_correction.correction(x)[0]
+    moved = mine["com_position"][-1, :2] - prior["com_position"][-1, :2]
+    np.testing.assert_allclose([moved @ turn[0, 0, :2], moved @ turn[0, 1, :2]], fix[:2], atol=1e-9)
+    # one request alone, or padded beside a longer one in a batch: the same prediction
+    short = predictor.predict(box, v0, w0, seconds=0.3)
+    both = predictor.predict_many([box, box], [v0, v0], [w0, w0], seconds=[0.3, 2.0])
+    np.testing.assert_allclose(both[0]["com_position"], short["com_position"], atol=1e-6)
+    np.testing.assert_allclose(both[1]["com_position"], mine["com_position"], atol=1e-6)
+    # a file called "fast" where the user is wins over the shipped model's name; a folder of that name does not
     monkeypatch.chdir(tmp_path)
+    (tmp_path / "fast").mkdir()
+    assert load_predictor("fast").model.outcome_correction is not None
+    (tmp_path / "fast").rmdir()
     (tmp_path / "fast").write_text("not a checkpoint")
     with pytest.raises(CheckpointError, match="fast is not a PyTorch checkpoint"):
-        read_checkpoint("fast")
+        load_predictor("fast")
+
+
+def x_spin(mesh) -> float:
+    """I_zz / m of ``mesh`` about the vertical as it rests (the mesh frame, as ``predict`` places it)."""
+    from physdyn.geometry.mass import vertical_inertia
+    from physdyn.predict.body import prepare_body
+
+    spec = prepare_body(mesh).spec
+    return float(vertical_inertia(spec.inertia_diag, spec.principal_axes, spec.mass, np.array([0.0, 0.0, 0.0, 1.0])))
