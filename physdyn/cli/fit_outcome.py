@@ -53,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     if min(args.seeds) < 0 or args.steps < MIN_STEPS or args.batch < 1:
         raise PhysdynError(f"--seeds must be >= 0, --steps at least {MIN_STEPS} (the networks are checked 20 times) "
                            f"and --batch at least 1; got {args.seeds}, {args.steps}, {args.batch}")
-    if args.checkpoint == PRIOR:
+    if args.checkpoint == PRIOR and not Path(PRIOR).is_file():  # a file of that name comes first, as for 'fast'
         if not args.data:
             raise PhysdynError(f"--checkpoint {PRIOR} has no store of its own; pass --data STORE")
         stores = [load_store(d) for d in args.data]
