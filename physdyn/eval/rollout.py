@@ -183,7 +183,9 @@ def rollout(
     A model with an ``outcome_correction`` has the resting pose of each push that comes to rest without
     toppling corrected, the correction spread over its trajectory (``physdyn.models.outcome_correction``);
     ``lengths`` (B,): each sequence's own number of states (steps + 1) where a batch is padded to its longest,
-    so that each is judged at its own end, as alone.
+    so that each is judged at its own end, as alone (``Predictor.predict_many`` passes them; without them
+    every sequence is judged at the batch's horizon, as a request of that length: ``physdyn test`` on a store
+    of mixed lengths, and fit-outcome's roll-outs, which run each push past its end to rest).
     body_inertia: optional (B, 3, 3) I / m of each body in world axes at step 0, for a topple classifier
     that simulates the cloud's hull (``fit-topple --physics``; ``physdyn.geometry.mass.world_inertia_per_mass``)
     and for ``model.sim_seconds``; without it those roll-outs take the hull's inertia.
@@ -255,18 +257,27 @@ def rollout(
     if getattr(model, "outcome_correction", None) is not None:  # fit-outcome: where the push ends, learned
         from physdyn.models.outcome_correction import correct_rollout  # torch: only for models that have one
 
-        if probability is not None:
-            toppled = (probability >= TOPPLE_THRESHOLD).any(axis=1)
-        else:  # no topple output: the conventions' rule on the roll-out's own poses
-            from physdyn.sim.trajectory import TOPPLE_ANGLE
-
-            toppled = (tilt_angle(q0[:, None], states["orientation_xyzw"]) > TOPPLE_ANGLE).any(axis=1)
+        toppled = toppled_by_own_end(probability, q0, states["orientation_xyzw"], lengths)
         states = {**states, **{k: np.array(v) for k, v in deltas.items()}}
         correct_rollout(model, states, _numpy(lin_vel0).reshape(B, 3), _numpy(ang_vel0).reshape(B, 3), given_spin_inertia,
                         points, toppled, lengths)
         deltas = {k: states.pop(k) for k in DELTA_KEYS}
     return RolloutResult(**states, topple_probability=probability, **deltas, fed_linear_velocity=fed_v,
                          fed_angular_velocity=fed_w)
+
+
+def toppled_by_own_end(probability: np.ndarray | None, q0: np.ndarray, orientations: np.ndarray,
+                       lengths: np.ndarray | None = None) -> np.ndarray:
+    """(B,) whether each roll-out has toppled by its own last state (``lengths`` (B,) states, default all T):
+    its per-step probabilities (B, T) reaching ``TOPPLE_THRESHOLD``, or, for a model with no topple output,
+    the conventions' rule on its own poses (B, T, 4): tilted past 45 degrees from step 0."""
+    T = orientations.shape[1]
+    live = np.ones((len(q0), T), dtype=bool) if lengths is None else np.arange(T)[None] < np.asarray(lengths)[:, None]
+    if probability is not None:
+        return ((np.asarray(probability) >= TOPPLE_THRESHOLD) & live).any(axis=1)
+    from physdyn.sim.trajectory import TOPPLE_ANGLE  # the conventions' topple rule
+
+    return ((tilt_angle(np.asarray(q0)[:, None], orientations) > TOPPLE_ANGLE) & live).any(axis=1)
 
 
 def sim_steps(model: Any) -> int:

@@ -122,6 +122,41 @@ def test_a_roll_out_that_does_not_turn_turns_along_its_path_and_a_cut_one_is_jud
     assert 0.0 < turn[4] < 0.2
     np.testing.assert_allclose(states["angular_velocity"][0, 9:, 2], 0.0, atol=1e-12)
     np.testing.assert_allclose(yaw_of(states["orientation_xyzw"][2]), turn, atol=1e-12)  # cut later, the same
+    # a push that rests exactly at its own last step: padded in a batch or alone, the same states, velocities too
+    padded = {k: a.copy() for k, a in given.items()}
+    correction.apply(padded, np.tile([0.0, 0.5, 0.0], (3, 1)), np.zeros((3, 3)), np.full(3, 1e-3), dt,
+                     lengths=np.array([30, 5, 9]))
+    alone = {k: a[2:3, :9].copy() for k, a in given.items()}
+    assert correction.apply(alone, np.array([[0.0, 0.5, 0.0]]), np.zeros((1, 3)), np.full(1, 1e-3), dt)[0]
+    for key in alone:
+        np.testing.assert_allclose(padded[key][2, :9], alone[key][0], atol=1e-12, err_msg=key)
+
+
+def test_a_push_is_toppled_by_its_own_end_not_the_batchs():
+    from physdyn.eval.rollout import toppled_by_own_end
+
+    q0 = np.tile([0.0, 0.0, 0.0, 1.0], (3, 1))
+    tilt = rotvec_to_quat(np.array([0.0, 1.0, 0.0]) * np.linspace(0.0, 1.2, 10)[:, None])  # past 45 deg from step 6
+    poses = np.repeat(tilt[None], 3, axis=0)
+    np.testing.assert_array_equal(toppled_by_own_end(None, q0, poses, np.array([10, 6, 7])), [True, False, True])
+    probability = np.repeat(np.linspace(0.0, 0.9, 10)[None], 3, axis=0)  # reaches 0.5 at step 5
+    np.testing.assert_array_equal(toppled_by_own_end(probability, q0, poses, np.array([10, 5, 6])), [True, False, True])
+    assert toppled_by_own_end(probability, q0, poses).all()
+
+
+def test_fit_outcome_says_what_is_missing_in_one_line(tiny_hull_store, monkeypatch):
+    import types
+
+    from physdyn.errors import PhysdynError
+    from physdyn.eval import outcome_fit
+
+    model = contact_prior_predictor(num_points=64).model
+    everything_topples = types.SimpleNamespace(topple_step=np.zeros(5, dtype=np.int64))
+    with pytest.raises(PhysdynError, match="every push of the --data stores topples"):
+        fit_outcome_correction(model, [everything_topples])
+    monkeypatch.setattr(outcome_fit, "REST_SPEED", -1.0)  # nothing counts as at rest
+    with pytest.raises(PhysdynError, match="come to rest"):
+        fit_outcome_correction(model, [load_store(tiny_hull_store)], steps=20)
 
 
 def test_fit_outcome_writes_a_checkpoint_that_predicts_with_no_simulator(tiny_hull_store, tiny_store, tmp_path,
@@ -143,6 +178,12 @@ def test_fit_outcome_writes_a_checkpoint_that_predicts_with_no_simulator(tiny_hu
         assert main(["fit-outcome", *bad, "--out", str(tmp_path / "bad.ckpt")]) == 2
         assert message in capsys.readouterr().err
         assert not (tmp_path / "bad.ckpt").exists()
+    # a file named contact_prior where the user is comes first (here not a checkpoint: said in one line)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "contact_prior").write_text("not a checkpoint")
+    assert main(["fit-outcome", "--checkpoint", "contact_prior", "--data", tiny_hull_store, "--out", "bad.ckpt"]) == 2
+    assert "contact_prior is not a PyTorch checkpoint" in capsys.readouterr().err
+    monkeypatch.undo()
     predictor = load_predictor(str(out))
     prior = contact_prior_predictor(num_points=64)
     assert predictor.model.outcome_correction is not None
@@ -193,6 +234,13 @@ def test_the_shipped_fast_model_simulates_nothing_and_a_file_of_its_name_comes_f
     (tmp_path / "fast").rmdir()
     (tmp_path / "fast").write_text("not a checkpoint")
     with pytest.raises(CheckpointError, match="fast is not a PyTorch checkpoint"):
+        load_predictor("fast")
+    # an installation without the file says so
+    from physdyn.models import checkpoint_file
+
+    monkeypatch.setitem(checkpoint_file.SHIPPED, "fast", tmp_path / "gone" / "fast.ckpt")
+    (tmp_path / "fast").unlink()
+    with pytest.raises(CheckpointError, match="no shipped model 'fast' in this installation"):
         load_predictor("fast")
 
 
