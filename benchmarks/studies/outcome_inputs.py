@@ -36,6 +36,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 sys.path.insert(0, str(ROOT))
 
+from physdyn.geometry.rotations import wrap_angle  # noqa: E402
 from physdyn.models import outcome_correction as oc  # noqa: E402
 
 STORES = ["data/quickstart_hull_many.zarr", "data/clusters_hull.zarr", "runs/urdf_train/urdf_160_999_hull256.zarr"]
@@ -151,7 +152,7 @@ def features(paths: list[str]) -> dict[str, np.ndarray]:
             truth = oc.resting_state(turn, p0, q0, store.com_position[last], store.orientation_xyzw[last],
                                      store.linear_velocity[last], store.angular_velocity[last])
             target = truth[:, 3:] - inputs[:, 9:12]
-            target[:, 2] = oc.wrap(target[:, 2])
+            target[:, 2] = wrap_angle(target[:, 2])
             early = [oc.resting_state(turn, p0, q0, P[:, k], Q[:, k], V[:, k], W[:, k]) for k in EARLY_STEPS]
             moving = (np.linalg.norm(V[:, 1:, :2], axis=-1) > 1e-3).sum(axis=1) / 15.0
             path_length = np.linalg.norm(np.diff(P[..., :2], axis=1), axis=-1).sum(axis=1)
@@ -196,7 +197,7 @@ def compare(cache: Path) -> None:
             idx = np.flatnonzero(group == g)
             rest = y[idx] - fix[idx]
             position = np.median(np.hypot(rest[:, 0], rest[:, 1])) / np.median(np.hypot(y[idx, 0], y[idx, 1]))
-            turn = np.median(np.abs(oc.wrap(rest[:, 2]))) / np.median(np.abs(y[idx, 2]))
+            turn = np.median(np.abs(wrap_angle(rest[:, 2]))) / np.median(np.abs(y[idx, 2]))
             print(f"| {name} | {label} ({len(idx)}) | {position:.3f} | {turn:.3f} |")
 
 

@@ -160,10 +160,10 @@ def load_checkpoint(path: str | Path):
     from physdyn.models.checkpoint_file import read_checkpoint  # torch: not for the numpy baselines
     from physdyn.models.dynamics_module import DynamicsModel  # and Lightning
 
-    from physdyn.models.checkpoint_file import shipped_or_path
-
-    path = shipped_or_path(path)  # "bundled" and "fast" name the shipped models
-    raw = read_checkpoint(path)  # a one-line error for a missing, unreadable, foreign or code-carrying file
+    path = Path(path)
+    # a one-line error for a missing, unreadable, foreign or code-carrying file; "bundled" and "fast" name the
+    # shipped models there
+    raw = read_checkpoint(path)
     try:
         # Built as Lightning's load_from_checkpoint builds it, but from the dict read without running code:
         # that one reads the file again, and before Lightning 2.6 with weights_only=False.

@@ -10,8 +10,9 @@ import numpy as np
 from physdyn.data.windows import store_spin_inertia, store_world_inertia
 from physdyn.errors import PhysdynError
 from physdyn.eval.rollout import rollout
+from physdyn.geometry.rotations import wrap_angle
 from physdyn.models.outcome_correction import (EXTRA_STEPS, REST_SPEED, REST_SPIN, OutcomeCorrection, outcome_inputs,
-                                               resting_state, train_outcome_network, wrap)
+                                               resting_state, train_outcome_network)
 
 
 def store_outcomes(model: Any, stores: list[Any], chunk: int = 2048,
@@ -48,7 +49,7 @@ def store_outcomes(model: Any, stores: list[Any], chunk: int = 2048,
                 truth = resting_state(turn, p0, q0, store.com_position[last], store.orientation_xyzw[last],
                                       store.linear_velocity[last], store.angular_velocity[last])
                 target = truth[:, 3:] - inputs[:, 9:12]
-                target[:, 2] = wrap(target[:, 2])
+                target[:, 2] = wrap_angle(target[:, 2])
                 parts["inputs"].append(inputs)
                 parts["targets"].append(target)
                 parts["split"].append(np.asarray(store.split[part], dtype=np.int64))
@@ -93,5 +94,5 @@ def fit_outcome_correction(model: Any, stores: list[Any], seeds: tuple[int, ...]
         rest = y - correction.correction(data["inputs"][idx])
         report["splits"][name] = {"pushes": int(len(idx)),
                                   "position_cm": [100 * float(np.median(np.hypot(a[:, 0], a[:, 1]))) for a in (y, rest)],
-                                  "yaw_deg": [float(np.degrees(np.median(np.abs(wrap(a[:, 2]))))) for a in (y, rest)]}
+                                  "yaw_deg": [float(np.degrees(np.median(np.abs(wrap_angle(a[:, 2]))))) for a in (y, rest)]}
     return correction, report

@@ -12,7 +12,6 @@ Shapes: B sequences, S = ``steps`` predicted transitions, T = S + 1 recorded ste
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 

@@ -72,6 +72,12 @@ def world_delta_rotvec(q_prev_xyzw: np.ndarray, q_next_xyzw: np.ndarray) -> np.n
     return quat_to_rotvec(quat_multiply(q_next_xyzw, quat_conjugate(q_prev_xyzw)))
 
 
+def wrap_angle(angle: np.ndarray | float) -> np.ndarray | float:
+    """Radians into (-pi, pi]."""
+    wrapped = np.pi - np.mod(np.pi - np.asarray(angle, dtype=np.float64), 2.0 * np.pi)
+    return float(wrapped) if np.ndim(wrapped) == 0 else wrapped
+
+
 def tilt_angle(q0_xyzw: np.ndarray, q_xyzw: np.ndarray) -> np.ndarray:
     """Angle (rad) between world z and the object's initial up direction carried by its rotation since q0.
 

@@ -26,8 +26,8 @@ from typing import Any, Callable
 import numpy as np
 import torch
 
-from physdyn.geometry.rotations import quat_conjugate, quat_multiply, rotvec_to_quat, world_delta_rotvec
-from physdyn.models.topple_pointnet import MIN_STEPS, cloud_spin_inertia, travel_turn
+from physdyn.geometry.rotations import quat_conjugate, quat_multiply, rotvec_to_quat, world_delta_rotvec, wrap_angle
+from physdyn.models.topple_pointnet import MIN_STEPS, cloud_spin_inertia, travel_scalars, travel_turn
 
 KIND = "outcome_mlp"
 INPUTS = 13  # step-0 velocity (3) and spin (3) in the travel frame, the resting state (6), I_zz / m
@@ -76,13 +76,8 @@ def outcome_inputs(v0: np.ndarray, w0: np.ndarray, spin_inertia: np.ndarray, p0:
                    p: np.ndarray, q: np.ndarray, v: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(raw inputs (B, 13), the travel frames (B, 3, 3)) from the step-0 state and the last step's."""
     turn = travel_turn(v0)
-    inputs = np.concatenate([np.einsum("bij,bj->bi", turn, v0), np.einsum("bij,bj->bi", turn, w0),
-                             resting_state(turn, p0, q0, p, q, v, w), np.asarray(spin_inertia).reshape(-1, 1)], axis=1)
-    return inputs, turn
-
-
-def wrap(angle: np.ndarray) -> np.ndarray:
-    return (angle + np.pi) % (2 * np.pi) - np.pi
+    push = travel_scalars(v0, w0, spin_inertia, turn)  # the topple PointNets' scalars: v0, w0, I_zz / m
+    return np.concatenate([push[:, :6], resting_state(turn, p0, q0, p, q, v, w), push[:, 6:]], axis=1), turn
 
 
 @dataclass
@@ -144,7 +139,7 @@ class OutcomeCorrection:
             fix = self.correction(inputs)
             shift = fix[:, 0:1] * turn[:, 0, :2] + fix[:, 1:2] * turn[:, 1, :2]  # (b, 2) world, horizontal
             moved = np.linalg.norm(np.diff(p[idx, :L, :2], axis=1), axis=-1)
-            turns = np.abs(wrap(np.diff(yaw_of(quat_multiply(q[idx, :L], quat_conjugate(q[idx, :1]))), axis=1)))
+            turns = np.abs(wrap_angle(np.diff(yaw_of(quat_multiply(q[idx, :L], quat_conjugate(q[idx, :1]))), axis=1)))
             # its own L steps as alone; past its own end, the whole correction and no change of velocity
             whole, still = np.ones((len(idx), T - L)), np.zeros((len(idx), T - L))
             own_along, own_turned = _progress(moved, turns), _progress(turns, moved)

@@ -24,7 +24,7 @@ import torch
 
 from physdyn.config import ImpulseConfig, PhysicsConfig
 from physdyn.errors import PredictionError, PredictionWarning
-from physdyn.geometry.rotations import quat_conjugate, quat_multiply, tilt_angle
+from physdyn.geometry.rotations import quat_conjugate, quat_multiply, tilt_angle, wrap_angle
 from physdyn.predict.body import PreparedBody, initial_pose
 from physdyn.predict.push import PushResponse
 from physdyn.predict.simulator import simulate_from_state
@@ -128,12 +128,6 @@ def check_bounds(speed_min: Any, speed_max: Any, height_fraction: Any, lateral_f
     if height > 0.5 or lateral > 1.0:
         raise PredictionError(f"height_fraction must be at most 0.5 and lateral_fraction at most 1, got {height:g} and {lateral:g}")
     return lo, hi, height, lateral
-
-
-def wrap_angle(angle: np.ndarray | float) -> np.ndarray | float:
-    """Radians into (-pi, pi]."""
-    wrapped = np.pi - np.mod(np.pi - np.asarray(angle, dtype=np.float64), 2.0 * np.pi)
-    return float(wrapped) if np.ndim(wrapped) == 0 else wrapped
 
 
 def turn_about_vertical(q0_xyzw: np.ndarray, q1_xyzw: np.ndarray) -> np.ndarray:

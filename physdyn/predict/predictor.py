@@ -32,6 +32,7 @@ from physdyn.eval.metrics import TOPPLE_THRESHOLD
 from physdyn.eval.rollout import rollout, sim_steps
 from physdyn.geometry.mass import vertical_inertia, world_inertia_per_mass
 from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_rotvec
+from physdyn.models.checkpoint_file import SHIPPED
 from physdyn.models.dynamics_module import DynamicsModel
 from physdyn.models.training import load_experiment_config
 from physdyn.predict.body import PreparedBody, initial_pose, preparation_key, prepare_body
@@ -39,7 +40,7 @@ from physdyn.predict.simulator import SIMULATOR_NAME, simulate_from_state
 from physdyn.sim.cloud_body import forget_clouds
 from physdyn.sim.trajectory import topple_labels
 
-BUNDLED_CHECKPOINT = Path(__file__).resolve().parents[1] / "assets" / "bundled.ckpt"
+BUNDLED_CHECKPOINT = SHIPPED["bundled"]
 DEFAULT_NUM_POINTS = 1024
 MAX_LINEAR_SPEED = 50.0  # m/s; training pushes are 0.5-2 m/s
 MAX_ANGULAR_SPEED = 500.0  # rad/s
