@@ -191,7 +191,12 @@ class DynamicsModel(LightningModule):
         spin_inertia: (B,) the body's I_zz / m about the world vertical, used by ``model.contact_inertia=body``
         instead of the cloud's estimate. Callers treat the code as opaque and hand it back to
         ``forward``/``step``."""
-        feature = self.encoder(points / self.point_scale)
+        if self.predictor.out_dim == 0:
+            # No network reads the feature (``model.predictor: none``, the contact prior alone): zeros of its
+            # width keep the code's layout, and a new mesh's prediction does not pay for the encoder.
+            feature = points.new_zeros(len(points), int(self.encoder.out_dim))
+        else:
+            feature = self.encoder(points / self.point_scale)
         if self.uses_shape_prior:
             geometry = contact_geometry(points, footprint=self.config.model.contact_footprint)
             feature = self._with_spin_inertia(torch.cat([feature, geometry], dim=1), spin_inertia)

@@ -64,3 +64,19 @@ def test_its_roll_outs_are_batched_as_one_requests(prior, box):
         one = prior.predict(box, v[i], w[i], seconds=1.2)
         np.testing.assert_allclose(many[i]["com_position"], one["com_position"], atol=1e-5)
         np.testing.assert_allclose(many[i]["orientation_xyzw"], one["orientation_xyzw"], atol=1e-5)
+
+
+def test_no_network_reads_the_shape_feature_so_the_encoder_is_not_run(box, monkeypatch):
+    # The encoder's output would feed a network the prior alone does not have: skipping it changes no number.
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        prior = contact_prior_predictor()
+    before = prior.predict(box, [1.0, 0.3, 0.0], [0.0, 0.0, 6.0], seconds=1.0)
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("the encoder ran")
+
+    monkeypatch.setattr(prior.model.encoder, "forward", refuse)
+    after = prior.predict(box, [1.0, 0.3, 0.0], [0.0, 0.0, 6.0], seconds=1.0)
+    np.testing.assert_array_equal(after["com_position"], before["com_position"])
+    np.testing.assert_array_equal(after["orientation_xyzw"], before["orientation_xyzw"])

@@ -408,6 +408,22 @@ def test_the_footprint_can_be_given_and_defaults_to_the_lowest_points():
         assert all(any(torch.allclose(s, p) for p in points[b, :3]) for s in support[b])
 
 
+def test_one_clouds_footprint_on_numpy_equals_the_batched_one_to_the_bit():
+    # One cloud (a new mesh's prediction) takes a numpy path; it must give the batch's numbers exactly,
+    # ties included: flat bottoms (many touching points) and clouds on a grid (equal distances).
+    g = torch.Generator().manual_seed(1)
+    for trial in range(300):
+        n = (4, 64, 256)[trial % 3]
+        clouds = torch.randn(3, n, 3, generator=g) * 0.05
+        if trial % 2:
+            clouds[:, : n // 2, 2] = clouds[:, :, 2].min(dim=1, keepdim=True).values
+        if trial % 5 == 0:
+            clouds = torch.round(clouds * 50) / 50
+        batch = contact_geometry(clouds)
+        for i in range(3):
+            assert torch.equal(contact_geometry(clouds[i : i + 1]), batch[i : i + 1])
+
+
 def test_the_area_footprint_finds_a_rectangles_four_corners_where_spreading_misses_some():
     box = _box_footprint(0.05, 0.03, 0.04)  # the bottom face of a 10 x 6 cm box: a grid with its corners
     corners = {(sx * 0.05, sy * 0.03) for sx in (-1, 1) for sy in (-1, 1)}
