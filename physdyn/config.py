@@ -418,6 +418,9 @@ class ModelConfig:
     # keeps them: finds a box face's corners; better on the procedural shapes, worse on irregular blobs;
     # docs/ablations.md, "Where the spin is lost"). Acts at inference too: `export --set` may change it.
     contact_footprint: str = "spread"
+    # The contact prior's sub-steps per recorded step (16: 1/240 s at 15 Hz); fewer cost less and integrate
+    # more coarsely (docs/ablations.md, "Correcting where the push ends"). Acts at inference too (`export --set`).
+    contact_substeps: int = 16
     # With a prior: the channels the network's residual corrects. "all" (velocity, spin, position, rotation),
     # "linear" (velocity and position; spin and rotation are the prior's) or "angular" (spin and rotation).
     # A "linear" network gave the best positions measured; `python -m physdyn.models.export --linear-from`

@@ -246,6 +246,8 @@ CASES = [
                                  "{ws}/t.ckpt"], "drop --physics"),
     ("topple-pointnet-few-steps", ["fit-topple", "--pointnet", "--steps", "2", "--checkpoint", "{ws}/run/last.ckpt", "--out",
                                    "{ws}/t.ckpt"], "--steps at least 20"),
+    ("topple-pointnet-one-width", ["fit-topple", "--pointnet", "--widths", "64", "--checkpoint", "{ws}/run/last.ckpt",
+                                   "--out", "{ws}/t.ckpt"], "--widths takes two or more"),
     ("topple-pointnet-bad-device", ["fit-topple", "--pointnet", "--device", "gpu", "--checkpoint", "{ws}/run/last.ckpt",
                                     "--out", "{ws}/t.ckpt"], "--device gpu"),
     ("topple-pointnet-missing-cuda", ["fit-topple", "--pointnet", "--device", "cuda:5", "--checkpoint",

@@ -47,6 +47,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--steps", type=int, default=3000, help="--pointnet: training steps per network")
     p.add_argument("--batch", type=int, default=256, help="--pointnet: pushes per step (defaults: 17 min on a 2-core CPU; "
                                                           "the H200 recipe: --seeds 0 1 2 --steps 10000 --batch 1024)")
+    p.add_argument("--widths", type=int, nargs="+", default=[64, 128, 256],
+                   help="--pointnet: the per-point layers' widths, the last also the head's (default 64 128 256; "
+                        "each push pays the per-point layers: 32 64 128 costs a quarter)")
     p.add_argument("--device", default="cpu", help="--pointnet: torch device to train on (cpu, cuda)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out")
     p.set_defaults(func=run, parser=p)
@@ -67,6 +70,8 @@ def run(args: argparse.Namespace) -> int:
     if args.pointnet and (min(args.seeds) < 0 or args.steps < 20 or args.batch < 1):
         raise PhysdynError(f"--seeds must be >= 0, --steps at least 20 (the networks are checked 20 times) and --batch "
                            f"at least 1; got {args.seeds}, {args.steps}, {args.batch}")
+    if args.pointnet and (len(args.widths) < 2 or min(args.widths) < 1):
+        raise PhysdynError(f"--widths takes two or more layer widths of at least 1 (e.g. 64 128 256), got {args.widths}")
     if args.pointnet:
         _check_device(args.device)
     model, data = checkpoint_and_store(args.checkpoint, args.data[0] if args.data else None)
@@ -138,8 +143,8 @@ def _fit_pointnet(args: argparse.Namespace, stores: list, out: Path) -> int:
     def progress(seed: int, step: int, accuracy: float) -> None:
         print(f"  network {seed}: step {step}/{args.steps}, validation accuracy {accuracy:.3f}", flush=True)
 
-    classifier, report = fit_pointnet_topple(stores, tuple(args.seeds), args.steps, args.batch, device=args.device,
-                                             progress=progress)
+    classifier, report = fit_pointnet_topple(stores, tuple(args.seeds), args.steps, args.batch, width=args.widths[-1],
+                                             device=args.device, point_widths=tuple(args.widths[:-1]), progress=progress)
     write_with_classifier(args.checkpoint, classifier, out)
     print(f"topple classifier (PointNets) on {', '.join(names)}: validation accuracy {report['val_accuracy']:.3f} "
           f"(always 'no': {report['val_majority']:.3f}; each network {', '.join(f'{a:.3f}' for a in report['network_val_accuracy'])}), "

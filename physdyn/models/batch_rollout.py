@@ -110,8 +110,9 @@ class _Rows:
         a, b = self.model, other.model
         same_geometry = (self.geometry is None and other.geometry is None) or (
             self.geometry is not None and other.geometry is not None and torch.equal(self.geometry, other.geometry))
-        return same_geometry and (a.config.model.prior, a.prior_dt, a.prior_friction, a.prior_gravity) == (
-            b.config.model.prior, b.prior_dt, b.prior_friction, b.prior_gravity)
+        return same_geometry and (a.config.model.prior, a.prior_dt, a.prior_friction, a.prior_gravity,
+                                  a.config.model.contact_substeps) == (
+            b.config.model.prior, b.prior_dt, b.prior_friction, b.prior_gravity, b.config.model.contact_substeps)
 
     def changes(self, t: int, v32: torch.Tensor, w32: torch.Tensor, q: torch.Tensor | None, fed: torch.Tensor,
                 turns: torch.Tensor | None, prior: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor | None]:

@@ -294,7 +294,7 @@ class DynamicsModel(LightningModule):
         """The analytic prior's changes (B, T, 12) SI, or None without a prior."""
         if geometry is not None:
             return contact_changes(linear_velocity, angular_velocity, orientation, geometry, self.prior_dt,
-                                   self.prior_friction, self.prior_gravity)
+                                   self.prior_friction, self.prior_gravity, self.config.model.contact_substeps)
         return prior_changes(self.config.model.prior, linear_velocity, angular_velocity, self.prior_dt,
                              self.prior_friction, self.prior_gravity)
 

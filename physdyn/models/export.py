@@ -35,7 +35,7 @@ KEEP = ("state_dict", "hyper_parameters", "hparams_name", "pytorch-lightning_ver
 # Settings that change what a trained network is combined with, not the network itself, and the name
 # reports give the model.
 INFERENCE_KEYS = ("model.residual_gate_linear", "model.residual_gate_angular", "model.contact_inertia",
-                  "model.contact_footprint", "model.sim_seconds", "name")
+                  "model.contact_footprint", "model.contact_substeps", "model.sim_seconds", "name")
 
 
 def apply_settings(hyper_parameters: dict, settings: list[str]) -> dict:

@@ -56,7 +56,7 @@ SUPPORT_POINTS = 4        # footprint points: Bullet's contact manifold keeps up
 SUPPORT_DEPTH = 0.005     # m: points this close to the lowest one carry the weight
 PRESSURE_LEAN = 0.5       # the centre of pressure leans by this times mu * (height of the centre of mass)
 SPIN_INERTIA = 0.8        # I_zz / m as this times the points' mean squared horizontal radius
-CONTACT_SUBSTEPS = 16     # per recorded step: 1/240 s at 15 Hz
+CONTACT_SUBSTEPS = 16     # per recorded step: 1/240 s at 15 Hz (model.contact_substeps' default)
 AT_REST = 1e-8            # m/s and rad/s: below both a one-object step takes the motion away at once
 
 
@@ -183,9 +183,11 @@ def _largest_area(xy: torch.Tensor, touching: torch.Tensor) -> tuple[torch.Tenso
 
 
 def contact_changes(linear_velocity: torch.Tensor, angular_velocity: torch.Tensor, orientation: torch.Tensor,
-                    geometry: torch.Tensor, dt: float, friction: float, gravity: float = 9.81) -> torch.Tensor:
+                    geometry: torch.Tensor, dt: float, friction: float, gravity: float = 9.81,
+                    substeps: int = CONTACT_SUBSTEPS) -> torch.Tensor:
     """Velocities (B, T, 3) SI, orientation (B, T, 4) xyzw since the points were taken, geometry from
-    ``contact_geometry`` -> (B, T, 12) [dv, dw, dp, dtheta] SI over one step dt (see the module docstring).
+    ``contact_geometry`` -> (B, T, 12) [dv, dw, dp, dtheta] SI over one step dt (see the module docstring),
+    integrated in ``substeps`` sub-steps (``model.contact_substeps``).
 
     Horizontal vectors are complex numbers x + iy: a turn by yaw is a product with exp(i yaw), the velocity
     of a point r of a body spinning at w_z is u + i w_z r, and the vertical torque r x f is Im(conj(r) f);
@@ -195,7 +197,7 @@ def contact_changes(linear_velocity: torch.Tensor, angular_velocity: torch.Tenso
         # One object, one step, no gradient: a one-at-a-time roll-out. The same arithmetic on Python
         # numbers costs ~0.1 ms where a loop of tiny tensor operations costs ~2 ms (tests compare them).
         out = _contact_changes_one(linear_velocity[0, 0].tolist(), angular_velocity[0, 0].tolist(),
-                                   orientation[0, 0].tolist(), geometry[0].tolist(), dt, friction, gravity)
+                                   orientation[0, 0].tolist(), geometry[0].tolist(), dt, friction, gravity, substeps)
         return torch.tensor(out, dtype=linear_velocity.dtype).reshape(1, 1, 12)
     if not torch.is_grad_enabled():
         # Without gradient (roll-outs, evaluation), as on the one-object path: a body at rest is stopped
@@ -208,14 +210,15 @@ def contact_changes(linear_velocity: torch.Tensor, angular_velocity: torch.Tenso
             b, t = (~rest).nonzero(as_tuple=True)
             if len(b):
                 out[b, t] = _contact_substeps(v[b, t][:, None], w[b, t][:, None], orientation[b, t][:, None],
-                                              geometry[b], dt, friction, gravity)[:, 0]
+                                              geometry[b], dt, friction, gravity, substeps)[:, 0]
             return out
-    return _contact_substeps(linear_velocity, angular_velocity, orientation, geometry, dt, friction, gravity)
+    return _contact_substeps(linear_velocity, angular_velocity, orientation, geometry, dt, friction, gravity, substeps)
 
 
 def _contact_substeps(linear_velocity: torch.Tensor, angular_velocity: torch.Tensor, orientation: torch.Tensor,
-                      geometry: torch.Tensor, dt: float, friction: float, gravity: float) -> torch.Tensor:
-    """``contact_changes`` by its sub-steps, for every (sequence, step) pair."""
+                      geometry: torch.Tensor, dt: float, friction: float, gravity: float,
+                      substeps: int = CONTACT_SUBSTEPS) -> torch.Tensor:
+    """``contact_changes`` by its ``substeps`` sub-steps, for every (sequence, step) pair."""
     B, T = linear_velocity.shape[:2]
     K = (geometry.shape[1] - 2) // 4
     support = geometry[:, : 3 * K].reshape(B, 1, K, 3)
@@ -226,7 +229,7 @@ def _contact_substeps(linear_velocity: torch.Tensor, angular_velocity: torch.Ten
     r = torch.complex(footprint[..., 0], footprint[..., 1])  # (B, T, K)
     centre = (base_weights * r).sum(-1, keepdim=True)
     decel = max(abs(float(friction) * float(gravity)), 1e-9)
-    h = dt / CONTACT_SUBSTEPS
+    h = dt / substeps
     slip_scale = decel * h  # below this slip speed friction scales down, so the body rests instead of chattering
     lean = PRESSURE_LEAN * float(friction) * height  # (B, 1, 1)
     v, w = linear_velocity, angular_velocity
@@ -263,7 +266,7 @@ def _contact_substeps(linear_velocity: torch.Tensor, angular_velocity: torch.Ten
     spun_r = 1j * r
     unit = torch.ones_like(om0)
     u_sum, om_sum = torch.zeros_like(u0), torch.zeros_like(om0)
-    for _ in range(CONTACT_SUBSTEPS):
+    for _ in range(substeps):
         rel = u + om * spun_r
         # min(slip / stick, 1) / slip: full friction above the stick speed, scaled down with the slip below
         pull = rel * (weights / torch.maximum(rel.abs(), stick))
@@ -281,7 +284,7 @@ def _contact_substeps(linear_velocity: torch.Tensor, angular_velocity: torch.Ten
 
 
 def _contact_changes_one(v: list, w: list, q: list, geometry: list, dt: float, friction: float,
-                         gravity: float) -> list:
+                         gravity: float, substeps: int = CONTACT_SUBSTEPS) -> list:
     """``contact_changes`` for one object and one step on Python numbers (complex for horizontal vectors),
     operation for operation: the 12 changes as a list."""
     if math.hypot(v[0], v[1]) < AT_REST and abs(w[2]) < AT_REST:
@@ -300,7 +303,7 @@ def _contact_changes_one(v: list, w: list, q: list, geometry: list, dt: float, f
     spin_inertia, height = geometry[4 * K], geometry[4 * K + 1]
     centre = sum(b * rk for b, rk in zip(base, r))
     decel = max(abs(float(friction) * float(gravity)), 1e-9)
-    h = dt / CONTACT_SUBSTEPS
+    h = dt / substeps
     slip_scale = decel * h
     lean = PRESSURE_LEAN * float(friction) * height
     u0, om0 = complex(v[0], v[1]), w[2]
@@ -321,7 +324,7 @@ def _contact_changes_one(v: list, w: list, q: list, geometry: list, dt: float, f
     stiffness = decel * h / spin_inertia
     stick = slip_scale * (1.0 + sum(wk * abs(rk) ** 2 for wk, rk in zip(weights, r)) / spin_inertia)
     pairs = [(wk, rk) for wk, rk in zip(weights, r) if wk > 0.0]  # a weightless point pulls nothing
-    for _ in range(CONTACT_SUBSTEPS):
+    for _ in range(substeps):
         pull, torque = 0j, 0.0
         for wk, rk in pairs:
             rel = u + 1j * om * rk

@@ -84,6 +84,7 @@ class _Network:
         self.uses_shape_prior = model.uses_shape_prior
         self.predicts_topple = model.predicts_topple
         self.prior_args = (model.prior_dt, model.prior_friction, model.prior_gravity)
+        self.substeps = int(m.contact_substeps)
 
     def start(self, code: np.ndarray) -> None:
         """A roll-out of the shape ``code`` (this network's part of the shape code) begins."""
@@ -98,7 +99,7 @@ class _Network:
         self.queued: list[np.ndarray] = []
 
     def prior_key(self) -> tuple:
-        return (self.prior, self.uses_shape_prior, tuple(self.geometry), self.prior_args)
+        return (self.prior, self.uses_shape_prior, tuple(self.geometry), self.prior_args, self.substeps)
 
     def _lstm(self, x: np.ndarray) -> np.ndarray:
         if not self.run_layers:  # no network: empty features
@@ -142,7 +143,7 @@ class _Network:
 
     def _prior(self, v32: list[float], w32: list[float], q32: list[float] | None) -> np.ndarray:
         if self.uses_shape_prior:
-            return np.array(_contact_changes_one(v32, w32, q32, self.geometry, *self.prior_args), np.float32)
+            return np.array(_contact_changes_one(v32, w32, q32, self.geometry, *self.prior_args, self.substeps), np.float32)
         out = prior_changes(self.prior, torch.tensor(v32), torch.tensor(w32), *self.prior_args)
         return out.numpy()
 

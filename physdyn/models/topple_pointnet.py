@@ -9,7 +9,7 @@ trained on thousands of shapes ("Toppling from the cloud alone").
 Each network sees the cloud (``hull_surface`` points, body frame turned to its step-0 orientation) in the
 frame of the push's travel (x along the step-0 horizontal velocity, z up), each point's height above the
 lowest one, and seven scalars: the step-0 velocity and spin in that frame and I_zz / m about the vertical.
-A PointNet (4 -> 64 -> 128 -> width per point, max-pooled) and a head of two hidden layers give the logit;
+A PointNet (4 -> 64 -> 128 -> width per point by default, max-pooled) and a head of two hidden layers give the logit;
 the probability is the mean of the networks' (an ensemble of seeds). Per step, the probability of having
 toppled by step t is P(topples) x F(t), as ``ToppleClassifier``'s.
 """
@@ -33,6 +33,8 @@ SCALARS = 7  # step-0 velocity (3) and spin (3) in the travel frame, I_zz / m
 # velocity (along, across, up) changes sign as (+, -, +), the spin, an axial vector, as (-, +, -).
 MIRROR_SCALARS = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0, 1.0], dtype=np.float32)
 MIN_STEPS = 20  # training steps: the best of 20 validation checks is kept
+PUSHES_PER_PASS = 32  # pushes per forward pass at prediction (``_in_passes``)
+POINT_WIDTHS = (64, 128)  # the per-point layers' widths before the last (of ``width``): the per-push cost
 INERTIA_SHAPE_FACTOR = 0.8  # I_zz / m from a bare cloud: 0.8 x its mean squared horizontal radius (the contact prior's)
 
 
@@ -40,10 +42,12 @@ class ToppleNet(torch.nn.Module):
     """One network: PointNet over (x, y, z, height above the lowest point) in decimetres, joined with the
     standardised scalars; one logit."""
 
-    def __init__(self, width: int = 256, scalars: int = SCALARS):
+    def __init__(self, width: int = 256, scalars: int = SCALARS, point_widths: tuple[int, ...] = POINT_WIDTHS):
         super().__init__()
-        self.points = torch.nn.Sequential(torch.nn.Linear(4, 64), torch.nn.ReLU(), torch.nn.Linear(64, 128),
-                                          torch.nn.ReLU(), torch.nn.Linear(128, width))
+        layers: list[torch.nn.Module] = []
+        for a, b in zip((4, *point_widths), point_widths):
+            layers += [torch.nn.Linear(a, b), torch.nn.ReLU()]
+        self.points = torch.nn.Sequential(*layers, torch.nn.Linear(point_widths[-1], width))
         self.head = torch.nn.Sequential(torch.nn.Linear(width + scalars, width), torch.nn.ReLU(),
                                         torch.nn.Linear(width, width), torch.nn.ReLU(), torch.nn.Linear(width, 1))
 
@@ -52,6 +56,16 @@ class ToppleNet(torch.nn.Module):
         height = cloud[..., 2:3] - cloud[..., 2:3].amin(dim=1, keepdim=True)
         feature = self.points(torch.cat([cloud * 10.0, height * 10.0], dim=-1)).amax(dim=1)
         return self.head(torch.cat([feature, scalars], dim=-1))[:, 0]
+
+
+def _in_passes(net: ToppleNet, cloud: torch.Tensor, scalars: torch.Tensor) -> torch.Tensor:
+    """``net``'s logits (B,) a few pushes at a time: the per-point layers' activations of PUSHES_PER_PASS
+    pushes stay in the CPU's cache, where those of 512 pushes (130 MB) do not: half the cost a push, the
+    same numbers (docs/performance.md)."""
+    if len(cloud) <= PUSHES_PER_PASS:
+        return net(cloud, scalars)
+    return torch.cat([net(cloud[i : i + PUSHES_PER_PASS], scalars[i : i + PUSHES_PER_PASS])
+                      for i in range(0, len(cloud), PUSHES_PER_PASS)])
 
 
 def travel_turn(linear_velocity: np.ndarray) -> np.ndarray:
@@ -90,13 +104,14 @@ class PointNetToppleClassifier:
     width: int = 256
     num_points: int = 256
     points_method: str = POINTS_METHOD
+    point_widths: tuple[int, ...] = POINT_WIDTHS
     physics: bool = False  # it simulates nothing (Predictor.without_simulator keeps it)
     _modules: list[ToppleNet] = field(default_factory=list, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self._modules = []
         for state in self.networks:
-            net = ToppleNet(self.width)
+            net = ToppleNet(self.width, point_widths=tuple(self.point_widths))
             net.load_state_dict(state)
             self._modules.append(net.eval())
 
@@ -110,7 +125,8 @@ class PointNetToppleClassifier:
         raw = travel_scalars(linear_velocity, angular_velocity, spin_inertia, turn)
         scalars = torch.tensor((raw - self.scalars_mean) / self.scalars_std, dtype=torch.float32)
         with torch.no_grad():
-            return np.mean([torch.sigmoid(net(cloud, scalars)).numpy() for net in self._modules], axis=0).astype(np.float64)
+            return np.mean([torch.sigmoid(_in_passes(net, cloud, scalars)).numpy() for net in self._modules],
+                           axis=0).astype(np.float64)
 
     def per_step(self, probability: np.ndarray, steps: int) -> np.ndarray:
         """(B,) -> (B, steps + 1): the probability of having toppled by step t (0 at step 0)."""
@@ -128,13 +144,14 @@ class PointNetToppleClassifier:
         return {"kind": KIND, "networks": [{k: t.detach().cpu().clone() for k, t in s.items()} for s in self.networks],
                 "scalars_mean": self.scalars_mean.tolist(), "scalars_std": self.scalars_std.tolist(),
                 "timing": self.timing.tolist(), "rate_hz": float(self.rate_hz), "width": int(self.width),
-                "num_points": int(self.num_points), "points_method": self.points_method}
+                "num_points": int(self.num_points), "points_method": self.points_method,
+                "point_widths": [int(w) for w in self.point_widths]}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "PointNetToppleClassifier":
         return cls([dict(s) for s in d["networks"]], np.asarray(d["scalars_mean"]), np.asarray(d["scalars_std"]),
                    np.asarray(d["timing"]), float(d["rate_hz"]), int(d["width"]), int(d["num_points"]),
-                   str(d.get("points_method", POINTS_METHOD)))
+                   str(d.get("points_method", POINTS_METHOD)), tuple(int(w) for w in d.get("point_widths", POINT_WIDTHS)))
 
 
 @dataclass
@@ -153,7 +170,8 @@ class TrainingSet:
 
 def train_network(data: TrainingSet, train: np.ndarray, val: np.ndarray, steps: int = 10000, batch: int = 1024,
                   width: int = 256, seed: int = 0, mirror: bool = True, device: str = "cpu",
-                  minutes: float | None = None, progress: Callable[[int, float], None] | None = None) -> dict[str, Any]:
+                  minutes: float | None = None, progress: Callable[[int, float], None] | None = None,
+                  point_widths: tuple[int, ...] = POINT_WIDTHS) -> dict[str, Any]:
     """One network on the pushes ``train`` (indices into ``data``), its checkpoint the best of 20 checks of
     accuracy on ``val``: AdamW (lr 1e-3, weight decay 1e-4) on a one-cycle schedule, binary cross-entropy,
     half of each batch mirrored across its travel (``mirror``). ``minutes``: stop then, keeping the best so
@@ -181,7 +199,7 @@ def train_network(data: TrainingSet, train: np.ndarray, val: np.ndarray, steps: 
         net.train()
         return float(((logits > 0).float() == label[torch.tensor(idx, device=dev)]).float().mean())
 
-    net = ToppleNet(width).to(dev)
+    net = ToppleNet(width, point_widths=tuple(point_widths)).to(dev)
     opt = torch.optim.AdamW(net.parameters(), lr=1e-3, weight_decay=1e-4)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=1e-3, total_steps=steps, pct_start=max(0.05, 2.0 / steps))
     train_t = torch.tensor(train, device=dev)
@@ -233,18 +251,19 @@ def store_training_set(stores: list[Any]) -> TrainingSet:
 
 def fit_pointnet_topple(stores: list[Any], seeds: tuple[int, ...] = (0,), steps: int = 3000, batch: int = 256,
                         width: int = 256, device: str = "cpu", minutes: float | None = None,
+                        point_widths: tuple[int, ...] = POINT_WIDTHS,
                         progress: Callable[[int, int, float], None] | None = None) -> tuple[PointNetToppleClassifier, dict[str, Any]]:
     """One network per seed on the stores' training splits, each chosen on their validation splits, as one
     classifier. Returns it and a report (validation accuracy of each network and of the ensemble, counts)."""
     data = store_training_set(stores)
     train, val = np.flatnonzero(data.split == 0), np.flatnonzero(data.split == 1)
     runs = [train_network(data, train, val, steps, batch, width, seed, True, device, minutes,
-                          None if progress is None else (lambda step, acc, s=seed: progress(s, step, acc)))
+                          None if progress is None else (lambda step, acc, s=seed: progress(s, step, acc)), point_widths)
             for seed in seeds]
     # one standardisation for the ensemble: every run's is the training split's, the same numbers
     classifier = PointNetToppleClassifier([r["state_dict"] for r in runs], runs[0]["scalars_mean"],
                                           runs[0]["scalars_std"], topple_timing(stores), float(stores[0].rate_hz), width,
-                                          int(data.clouds.shape[1]))
+                                          int(data.clouds.shape[1]), point_widths=tuple(point_widths))
     first = stores_first_frames(stores, split=1)  # the validation pushes, in the order of ``val``
     p = classifier.probability(first["points"], first["v0"], first["w0"], first["spin"])
     report = {"val_accuracy": float(np.mean((p > 0.5) == (data.label[val] > 0.5))),

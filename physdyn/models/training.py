@@ -46,6 +46,7 @@ class FitResult:
 
 
 MAX_SIM_SECONDS = 4.0  # model.sim_seconds: beyond that the prediction would be the simulator's alone
+MAX_CONTACT_SUBSTEPS = 256  # model.contact_substeps: past that the prior's cost grows and its numbers do not move
 
 
 def validate_experiment_config(cfg: ExperimentConfig) -> ExperimentConfig:
@@ -66,6 +67,9 @@ def validate_experiment_config(cfg: ExperimentConfig) -> ExperimentConfig:
     if not 0 <= m.sim_seconds <= MAX_SIM_SECONDS:
         raise ConfigError(f"config key 'model.sim_seconds': seconds simulated before the networks take over, "
                           f"0 to {MAX_SIM_SECONDS:g}, got {m.sim_seconds}")
+    if not 1 <= m.contact_substeps <= MAX_CONTACT_SUBSTEPS:
+        raise ConfigError(f"config key 'model.contact_substeps': the contact prior's sub-steps per recorded step, "
+                          f"1 to {MAX_CONTACT_SUBSTEPS}, got {m.contact_substeps}")
     for key in ("residual_gate_linear", "residual_gate_angular"):
         value = getattr(m, key)
         if not (value >= 0 and np.isfinite(value)):

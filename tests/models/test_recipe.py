@@ -68,7 +68,8 @@ def test_unknown_choices_are_one_line_config_errors(tiny_store, tmp_path):
                      ("loss.kind=l2", "loss.kind"), ("rollout.feedback=1.5", "rollout.feedback"),
                      ("rollout.input_noise=-0.1", "rollout.input_noise"), ("data.first_window_fraction=2", "data.first_window_fraction"),
                      ("model.contact_footprint=corners", "model.contact_footprint"),
-                     ("model.sim_seconds=-0.1", "model.sim_seconds"), ("model.sim_seconds=10", "model.sim_seconds")):
+                     ("model.sim_seconds=-0.1", "model.sim_seconds"), ("model.sim_seconds=10", "model.sim_seconds"),
+                     ("model.contact_substeps=0", "model.contact_substeps")):
         with pytest.raises(ConfigError, match=key.replace(".", r"\.")) as info:
             load_experiment_config(QUICKSTART, shrunk_overrides(tiny_store, tmp_path, bad))
         assert "\n" not in str(info.value)

@@ -25,6 +25,9 @@ RECIPES = [
     ["model.predictor.name=none", "model.head.name=no_topple", "model.prior=contact", "model.orientation_input=true",
      "model.residual_gate_linear=0.1", "model.residual_gate_angular=1.0"],
     ["model.predictor.name=none", "model.head.name=topple", "model.prior=contact", "model.orientation_input=true"],
+    # the shipped fast model's prior: 8 sub-steps a recorded step
+    ["model.predictor.name=none", "model.head.name=no_topple", "model.prior=contact", "model.orientation_input=true",
+     "model.contact_substeps=8"],
 ]
 
 

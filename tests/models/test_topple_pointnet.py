@@ -86,6 +86,29 @@ def test_a_checkpoint_keeps_it_and_is_read_without_running_code(fitted, tmp_path
     first = stores_first_frames([store], split=1)
     np.testing.assert_array_equal(back.probability(first["points"], first["v0"], first["w0"], first["spin"]),
                                   classifier.probability(first["points"], first["v0"], first["w0"], first["spin"]))
+    # a file of the fourteenth session's, from before the layer widths were written, reads as the default ones
+    old = classifier.to_dict()
+    del old["point_widths"]
+    assert topple_classifier_from_dict(old).point_widths == (64, 128)
+
+
+def test_narrower_per_point_layers_train_and_travel_through_a_checkpoint(hull_store, tmp_path):
+    from physdyn.models.checkpoint_file import read_torch_file, write_torch_file
+    from physdyn.models.topple_classifier import topple_classifier_from_dict
+
+    torch.set_num_threads(1)
+    store = load_store(hull_store)
+    classifier, report = fit_pointnet_topple([store], seeds=(0,), steps=300, batch=32, width=16, point_widths=(8, 12))
+    shapes = {k: tuple(v.shape) for k, v in classifier.networks[0].items() if k.startswith("points")}
+    assert shapes == {"points.0.weight": (8, 4), "points.0.bias": (8,), "points.2.weight": (12, 8), "points.2.bias": (12,),
+                      "points.4.weight": (16, 12), "points.4.bias": (16,)}
+    assert report["val_accuracy"] >= report["val_majority"]
+    write_torch_file({"topple_classifier": classifier.to_dict()}, tmp_path / "c.ckpt")
+    back = topple_classifier_from_dict(read_torch_file(tmp_path / "c.ckpt", "a checkpoint")["topple_classifier"])
+    assert back.point_widths == (8, 12)
+    first = stores_first_frames([store], split=1)
+    np.testing.assert_array_equal(back.probability(first["points"], first["v0"], first["w0"], first["spin"]),
+                                  classifier.probability(first["points"], first["v0"], first["w0"], first["spin"]))
 
 
 def test_a_model_with_it_predicts_toppling_with_no_simulator(fitted, tiny_store, hull_store, tmp_path, monkeypatch,
@@ -134,3 +157,15 @@ def test_a_model_with_it_predicts_toppling_with_no_simulator(fitted, tiny_store,
                  str(tmp_path / "report")]) == 2
     assert "the model reads surface clouds and its topple classifier hull_surface ones" in capsys.readouterr().err
     assert not (tmp_path / "report").exists()
+
+
+def test_many_pushes_go_through_the_network_a_few_at_a_time_with_the_same_numbers(fitted, monkeypatch):
+    import physdyn.models.topple_pointnet as topple_pointnet
+
+    store, classifier, _ = fitted
+    first = stores_first_frames([store])  # 150 pushes: five passes of 32 and a short one
+    args = (first["points"], first["v0"], first["w0"], first["spin"])
+    in_passes = classifier.probability(*args)
+    monkeypatch.setattr(topple_pointnet, "PUSHES_PER_PASS", 10**9)
+    np.testing.assert_array_equal(in_passes, classifier.probability(*args))
+    assert len(in_passes) == store.num_sims > 32

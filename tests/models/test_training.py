@@ -345,14 +345,16 @@ def test_export_keeps_what_prediction_needs_and_nothing_to_resume(quickstart_con
     # inference settings chosen after training go into the shipped config, checked as fit checks them
     tuned = export_checkpoint(full, tmp_path / "tuned.ckpt", settings=["model.contact_inertia=body",
                                                                         "model.residual_gate_linear=0.2", "name=shipped",
-                                                                        "model.contact_footprint=area", "model.sim_seconds=0.4"])
+                                                                        "model.contact_footprint=area", "model.sim_seconds=0.4",
+                                                                        "model.contact_substeps=8"])
     model = load_checkpoint(tuned)
     assert model.config.model.contact_inertia == "body" and model.config.model.residual_gate_linear == 0.2
     assert model.config.model.contact_footprint == "area" and model.config.model.sim_seconds == 0.4
+    assert model.config.model.contact_substeps == 8
     assert model.config.name == "shipped"
     torch.testing.assert_close(model.state_dict(), load_checkpoint(slim).state_dict())
     for bad in ("model.prior=none", "model.contact_inertia=exact", "contact_inertia", "model.residual_gate_linear=[",
-                "model.contact_footprint=corners", "model.sim_seconds=-1"):
+                "model.contact_footprint=corners", "model.sim_seconds=-1", "model.contact_substeps=0"):
         with pytest.raises(ConfigError):
             export_checkpoint(full, tmp_path / "bad.ckpt", settings=[bad])
     assert not (tmp_path / "bad.ckpt").exists()
