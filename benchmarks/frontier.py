@@ -31,7 +31,9 @@ Two regimes:
     built inside the timing, once, and pushed from each step-0 state (velocities set directly, as
     ``simulate_from_state`` does); its cost per request is that build plus one roll-out. The steps take
     turns mesh by mesh and the predictors request by request, so the shared machine's load falls on all
-    alike; costs are CPU time.
+    alike; costs are CPU time. ``--repeats N`` times every timed piece N times in a row (a fresh mesh and
+    emptied caches each time) and keeps its fastest: one pass moves 10-30 % between runs on a shared
+    machine, the best of five a few per cent (docs/ablations.md, "A cheaper fast").
 (b) many pushes of one mesh: ``--one-meshes`` meshes of each set, ``--one-mesh-pushes`` simulated pushes
     each, a ``--one-mesh-seconds`` horizon. physdyn: one ``predict_many`` per mesh on one mesh object
     (prepared once, inside the timing); PyBullet: the body built once per mesh; both spread over the pushes.
@@ -143,13 +145,14 @@ def roll_out(world: PhysicsWorld, spec: Any, shape: int, req: Requests, r: int, 
 
 
 def pybullet_rows(worlds: dict[int, PhysicsWorld], meshes: dict[str, trimesh.Trimesh], req: Requests, rate_hz: float,
-                  new_mesh_each: bool) -> dict[int, Outcome]:
+                  new_mesh_each: bool, repeats: int = 1) -> dict[int, Outcome]:
     """PyBullet on each mesh's convex hull with its exact mass properties, at each world's step. The body
     (``prepare_body`` on a fresh copy, then its collision shape) is built inside the timing, once per mesh
     and step. Cost per trajectory: with ``new_mesh_each`` (regime a) a build and a roll-out, every request
     being a new mesh; else (regime b) the builds spread over all the pushes. The steps take turns mesh by
     mesh, so a change in the shared machine's load falls on all of them alike; a build, the same work at
-    every step, costs the median of its five timings (a stall of the machine is not the body's)."""
+    every step, costs the median of its five timings (a stall of the machine is not the body's). With
+    ``repeats`` each build and each roll-out is timed that many times, its fastest kept."""
     outs = {hz: Outcome.empty(len(req)) for hz in worlds}
     rollouts = dict.fromkeys(worlds, 0.0)
     build = 0.0
@@ -157,15 +160,16 @@ def pybullet_rows(worlds: dict[int, PhysicsWorld], meshes: dict[str, trimesh.Tri
     for key, idx in groups.items():
         builds = []
         for hz, world in worlds.items():
-            mesh = meshes[key].copy()
-            t0 = CLOCK()
-            spec = prepare_body(mesh).spec
-            shape = world.collision_shape(spec)
-            t1 = CLOCK()
+            fastest = np.inf
+            for _ in range(repeats):
+                mesh = meshes[key].copy()
+                t0 = CLOCK()
+                spec = prepare_body(mesh).spec
+                shape = world.collision_shape(spec)
+                fastest = min(fastest, CLOCK() - t0)
             for r in idx:
-                roll_out(world, spec, shape, req, r, rate_hz, outs[hz])
-            rollouts[hz] += CLOCK() - t1
-            builds.append(t1 - t0)
+                rollouts[hz] += best_of(repeats, lambda: roll_out(world, spec, shape, req, r, rate_hz, outs[hz]))
+            builds.append(fastest)
         build += float(np.median(builds))
     for hz, out in outs.items():
         out.ms = {"build": 1000 * build / len(groups), "rollout": 1000 * rollouts[hz] / len(req)}
@@ -190,19 +194,22 @@ def ceiling_row(world: PhysicsWorld, bodies: dict[str, Any], req: Requests, rate
 
 
 def physdyn_one_at_a_time(predictors: dict[str, Predictor], meshes: dict[str, trimesh.Trimesh],
-                          req: Requests) -> dict[str, Outcome]:
+                          req: Requests, repeats: int = 1) -> dict[str, Outcome]:
     """``Predictor.predict`` per request, each on a fresh copy of its mesh, new to physdyn, timed; the
     predictors take turns request by request (as the PyBullet steps do)."""
     outs = {name: Outcome.empty(len(req)) for name in predictors}
     spent = dict.fromkeys(predictors, 0.0)
     for r, key in enumerate(req.mesh):
         for name, predictor in predictors.items():
-            mesh = meshes[key].copy()
-            predictor.forget_meshes()  # outside the timing: the mesh is new to physdyn
-            t0 = CLOCK()
-            result = predictor.predict(mesh, req.v0[r], req.w0[r], seconds=req.steps[r] / predictor.rate_hz,
-                                       orientation_xyzw=req.q0[r])
-            spent[name] += CLOCK() - t0
+            fastest = np.inf
+            for _ in range(repeats):
+                mesh = meshes[key].copy()
+                predictor.forget_meshes()  # outside the timing: the mesh is new to physdyn
+                t0 = CLOCK()
+                result = predictor.predict(mesh, req.v0[r], req.w0[r], seconds=req.steps[r] / predictor.rate_hz,
+                                           orientation_xyzw=req.q0[r])
+                fastest = min(fastest, CLOCK() - t0)
+            spent[name] += fastest
             outs[name].set(r, result["com_position"], result["orientation_xyzw"], result["toppled"])
     for name, out in outs.items():
         out.ms = {"one": 1000 * spent[name] / len(req)}
@@ -210,7 +217,7 @@ def physdyn_one_at_a_time(predictors: dict[str, Predictor], meshes: dict[str, tr
 
 
 def physdyn_batched(predictors: dict[str, Predictor], meshes: dict[str, trimesh.Trimesh], req: Requests,
-                    batches: list[np.ndarray], one_object: bool) -> dict[str, Outcome]:
+                    batches: list[np.ndarray], one_object: bool, repeats: int = 1) -> dict[str, Outcome]:
     """One timed ``Predictor.predict_many`` per batch (indices into ``req``) and predictor, its meshes new
     to physdyn: each request with a fresh copy of its mesh, or (``one_object``, a batch of one mesh's
     pushes) one copy shared by all, prepared once. The predictors take turns batch by batch."""
@@ -218,18 +225,31 @@ def physdyn_batched(predictors: dict[str, Predictor], meshes: dict[str, trimesh.
     spent = dict.fromkeys(predictors, 0.0)
     for idx in batches:
         for name, predictor in predictors.items():
-            shared = meshes[req.mesh[idx[0]]].copy()
-            copies = [shared if one_object else meshes[req.mesh[r]].copy() for r in idx]
-            predictor.forget_meshes()
-            t0 = CLOCK()
-            results = predictor.predict_many(copies, req.v0[idx], req.w0[idx],
-                                             seconds=list(req.steps[idx] / predictor.rate_hz), orientation_xyzw=req.q0[idx])
-            spent[name] += CLOCK() - t0
+            fastest = np.inf
+            for _ in range(repeats):
+                shared = meshes[req.mesh[idx[0]]].copy()
+                copies = [shared if one_object else meshes[req.mesh[r]].copy() for r in idx]
+                predictor.forget_meshes()
+                t0 = CLOCK()
+                results = predictor.predict_many(copies, req.v0[idx], req.w0[idx],
+                                                 seconds=list(req.steps[idx] / predictor.rate_hz), orientation_xyzw=req.q0[idx])
+                fastest = min(fastest, CLOCK() - t0)
+            spent[name] += fastest
             for r, result in zip(idx, results):
                 outs[name].set(r, result["com_position"], result["orientation_xyzw"], result["toppled"])
     for name, out in outs.items():
         out.ms = {"batched": 1000 * spent[name] / len(req)}
     return outs
+
+
+def best_of(repeats: int, run: Callable[[], Any]) -> float:
+    """The fastest of ``repeats`` timings of ``run()`` (CPU seconds)."""
+    fastest = np.inf
+    for _ in range(repeats):
+        t0 = CLOCK()
+        run()
+        fastest = min(fastest, CLOCK() - t0)
+    return fastest
 
 
 def sliding_outcome(req: Requests) -> Outcome:
@@ -296,13 +316,14 @@ def pybullet_table_rows(req: Requests, outs: dict[int, Outcome]) -> list[dict]:
 
 
 def regime_new_meshes(meshes: dict[str, trimesh.Trimesh], req: Requests, worlds: dict[int, PhysicsWorld],
-                      predictors: dict[str, Predictor], rate_hz: float, progress: Progress) -> list[dict]:
+                      predictors: dict[str, Predictor], rate_hz: float, progress: Progress, repeats: int = 1) -> list[dict]:
     """Regime (a): each request a mesh new to the predictor; rows in table order."""
     rows = [make_row("Coulomb sliding (no rotation, no topple)", "baseline", req, sliding_outcome(req))]
     rows += pybullet_table_rows(req, progress.measure("PyBullet, every step", lambda: pybullet_rows(
-        worlds, meshes, req, rate_hz, new_mesh_each=True)))
-    one = progress.measure("physdyn, one at a time", lambda: physdyn_one_at_a_time(predictors, meshes, req))
-    batched = progress.measure("physdyn, batched", lambda: physdyn_batched(predictors, meshes, req, req.rounds(), False))
+        worlds, meshes, req, rate_hz, new_mesh_each=True, repeats=repeats)))
+    one = progress.measure("physdyn, one at a time", lambda: physdyn_one_at_a_time(predictors, meshes, req, repeats))
+    batched = progress.measure("physdyn, batched", lambda: physdyn_batched(predictors, meshes, req, req.rounds(), False,
+                                                                           repeats))
     for name in predictors:
         one[name].ms.update(batched[name].ms)
         rows.append(make_row(name, "physdyn", req, one[name], batched=score(req, batched[name])))
@@ -317,14 +338,14 @@ def regime_new_meshes(meshes: dict[str, trimesh.Trimesh], req: Requests, worlds:
 
 
 def regime_one_mesh(meshes: dict[str, trimesh.Trimesh], req: Requests, worlds: dict[int, PhysicsWorld],
-                    predictors: dict[str, Predictor], rate_hz: float, progress: Progress) -> list[dict]:
+                    predictors: dict[str, Predictor], rate_hz: float, progress: Progress, repeats: int = 1) -> list[dict]:
     """Regime (b): many pushes of each of a few meshes; rows in table order."""
     rows = [make_row("Coulomb sliding (no rotation, no topple)", "baseline", req, sliding_outcome(req))]
     rows += pybullet_table_rows(req, progress.measure("PyBullet, every step", lambda: pybullet_rows(
-        worlds, meshes, req, rate_hz, new_mesh_each=False)))
+        worlds, meshes, req, rate_hz, new_mesh_each=False, repeats=repeats)))
     batches = list(req.by_mesh().values())
     outs = progress.measure("physdyn, predict_many on one mesh", lambda: physdyn_batched(
-        predictors, meshes, req, batches, one_object=True))
+        predictors, meshes, req, batches, one_object=True, repeats=repeats))
     rows += [make_row(name, "physdyn", req, out) for name, out in outs.items()]
     return add_cost_ratios(rows)
 
@@ -393,13 +414,13 @@ def measure_set(set_name: str, args: argparse.Namespace, predictors: dict[str, P
     for predictor in predictors.values():
         warm_up(predictor, next(iter(parsed.values())))
     req = requests_from_store(store)
-    rows_a = regime_new_meshes(parsed, req, worlds, predictors, rate, Progress(f"{set_name} (a)"))
+    rows_a = regime_new_meshes(parsed, req, worlds, predictors, rate, Progress(f"{set_name} (a)"), args.repeats)
 
     few = one_mesh_set(meshes, args.one_meshes)
     store_b = truth_store(few, args.one_mesh_pushes)
     parsed_b = {key: load_mesh(key) for key in dict.fromkeys(map(str, store_b.source))}
     req_b = requests_from_store(store_b, horizon=int(round(args.one_mesh_seconds * rate)))
-    rows_b = regime_one_mesh(parsed_b, req_b, worlds, predictors, rate, Progress(f"{set_name} (b)"))
+    rows_b = regime_one_mesh(parsed_b, req_b, worlds, predictors, rate, Progress(f"{set_name} (b)"), args.repeats)
     for world in worlds.values():
         world.close()
     return {
@@ -476,10 +497,15 @@ def parse_args() -> argparse.Namespace:
                                                 "(default reports/frontier/frontier.md)")
     ap.add_argument("--plot", default=None, help="the plot (default: --out with .png; docs/performance.md's "
                                                  "run passed --plot docs/figures/frontier.png)")
+    ap.add_argument("--repeats", type=int, default=1,
+                    help="time every request (and PyBullet's builds and roll-outs) this many times and keep the fastest: "
+                         "5 gives costs that move a few per cent between runs, at about 3x the run time")
     ap.add_argument("--quick", action="store_true",
                     help="a smoke check: " + ", ".join(f"--{k.replace('_', '-')} {v}" for k, v in QUICK.items())
                          + "; report and plot under WORK/quick/ unless given")
     args = ap.parse_args()
+    if args.repeats < 1:
+        ap.error(f"--repeats: at least 1, got {args.repeats}")
     if args.quick:
         for key, value in QUICK.items():
             setattr(args, key, value)

@@ -44,6 +44,8 @@ class ToppleNet(torch.nn.Module):
 
     def __init__(self, width: int = 256, scalars: int = SCALARS, point_widths: tuple[int, ...] = POINT_WIDTHS):
         super().__init__()
+        if not point_widths or min(point_widths) < 1:
+            raise ValueError(f"point_widths: one or more layer widths of at least 1, got {point_widths}")
         layers: list[torch.nn.Module] = []
         for a, b in zip((4, *point_widths), point_widths):
             layers += [torch.nn.Linear(a, b), torch.nn.ReLU()]
@@ -60,8 +62,8 @@ class ToppleNet(torch.nn.Module):
 
 def _in_passes(net: ToppleNet, cloud: torch.Tensor, scalars: torch.Tensor) -> torch.Tensor:
     """``net``'s logits (B,) a few pushes at a time: the per-point layers' activations of PUSHES_PER_PASS
-    pushes stay in the CPU's cache, where those of 512 pushes (130 MB) do not: half the cost a push, the
-    same numbers (docs/performance.md)."""
+    pushes stay in the CPU's cache, where those of 512 pushes (130 MB) do not: about 0.6x the cost a push
+    for 512, the same numbers to float32 rounding (docs/ablations.md, "A cheaper fast")."""
     if len(cloud) <= PUSHES_PER_PASS:
         return net(cloud, scalars)
     return torch.cat([net(cloud[i : i + PUSHES_PER_PASS], scalars[i : i + PUSHES_PER_PASS])
