@@ -32,8 +32,10 @@ Two regimes:
     ``simulate_from_state`` does); its cost per request is that build plus one roll-out. The steps take
     turns mesh by mesh and the predictors request by request, so the shared machine's load falls on all
     alike; costs are CPU time. ``--repeats N`` times every timed piece N times in a row (a fresh mesh and
-    emptied caches each time) and keeps its fastest: one pass moves 10-30 % between runs on a shared
-    machine, the best of five a few per cent (docs/ablations.md, "A cheaper fast").
+    emptied caches each time) and keeps its fastest: it removes a request's stalls, not the shared machine's
+    drift between the run's phases (PyBullet's rows are timed before physdyn's; two runs of the best of five
+    12 minutes apart timed PyBullet 1/120 s at 6.10 and 7.35 ms): compare ratios within a run
+    (docs/ablations.md, "A cheaper fast").
 (b) many pushes of one mesh: ``--one-meshes`` meshes of each set, ``--one-mesh-pushes`` simulated pushes
     each, a ``--one-mesh-seconds`` horizon. physdyn: one ``predict_many`` per mesh on one mesh object
     (prepared once, inside the timing); PyBullet: the body built once per mesh; both spread over the pushes.
@@ -498,8 +500,8 @@ def parse_args() -> argparse.Namespace:
     ap.add_argument("--plot", default=None, help="the plot (default: --out with .png; docs/performance.md's "
                                                  "run passed --plot docs/figures/frontier.png)")
     ap.add_argument("--repeats", type=int, default=1,
-                    help="time every request (and PyBullet's builds and roll-outs) this many times and keep the fastest: "
-                         "5 gives costs that move a few per cent between runs, at about 3x the run time")
+                    help="time every request (and PyBullet's builds and roll-outs) this many times and keep the fastest "
+                         "(a request's stalls go, the machine's drift between phases does not; 5: about 4x the run time)")
     ap.add_argument("--quick", action="store_true",
                     help="a smoke check: " + ", ".join(f"--{k.replace('_', '-')} {v}" for k, v in QUICK.items())
                          + "; report and plot under WORK/quick/ unless given")
