@@ -162,16 +162,14 @@ def pybullet_rows(worlds: dict[int, PhysicsWorld], meshes: dict[str, trimesh.Tri
     for key, idx in groups.items():
         builds = []
         for hz, world in worlds.items():
-            fastest = np.inf
-            for _ in range(repeats):
-                mesh = meshes[key].copy()
-                t0 = CLOCK()
+            def make_body(mesh: trimesh.Trimesh, world: PhysicsWorld = world) -> tuple[Any, int]:
                 spec = prepare_body(mesh).spec
-                shape = world.collision_shape(spec)
-                fastest = min(fastest, CLOCK() - t0)
+                return spec, world.collision_shape(spec)
+
+            seconds, (spec, shape) = best_of(repeats, make_body, meshes[key].copy)
             for r in idx:
-                rollouts[hz] += best_of(repeats, lambda: roll_out(world, spec, shape, req, r, rate_hz, outs[hz]))
-            builds.append(fastest)
+                rollouts[hz] += best_of(repeats, lambda _: roll_out(world, spec, shape, req, r, rate_hz, outs[hz]))[0]
+            builds.append(seconds)
         build += float(np.median(builds))
     for hz, out in outs.items():
         out.ms = {"build": 1000 * build / len(groups), "rollout": 1000 * rollouts[hz] / len(req)}
@@ -203,15 +201,13 @@ def physdyn_one_at_a_time(predictors: dict[str, Predictor], meshes: dict[str, tr
     spent = dict.fromkeys(predictors, 0.0)
     for r, key in enumerate(req.mesh):
         for name, predictor in predictors.items():
-            fastest = np.inf
-            for _ in range(repeats):
-                mesh = meshes[key].copy()
+            def new_mesh(predictor: Predictor = predictor) -> trimesh.Trimesh:
                 predictor.forget_meshes()  # outside the timing: the mesh is new to physdyn
-                t0 = CLOCK()
-                result = predictor.predict(mesh, req.v0[r], req.w0[r], seconds=req.steps[r] / predictor.rate_hz,
-                                           orientation_xyzw=req.q0[r])
-                fastest = min(fastest, CLOCK() - t0)
-            spent[name] += fastest
+                return meshes[key].copy()
+
+            seconds, result = best_of(repeats, lambda mesh: predictor.predict(
+                mesh, req.v0[r], req.w0[r], seconds=req.steps[r] / predictor.rate_hz, orientation_xyzw=req.q0[r]), new_mesh)
+            spent[name] += seconds
             outs[name].set(r, result["com_position"], result["orientation_xyzw"], result["toppled"])
     for name, out in outs.items():
         out.ms = {"one": 1000 * spent[name] / len(req)}
@@ -227,16 +223,15 @@ def physdyn_batched(predictors: dict[str, Predictor], meshes: dict[str, trimesh.
     spent = dict.fromkeys(predictors, 0.0)
     for idx in batches:
         for name, predictor in predictors.items():
-            fastest = np.inf
-            for _ in range(repeats):
-                shared = meshes[req.mesh[idx[0]]].copy()
-                copies = [shared if one_object else meshes[req.mesh[r]].copy() for r in idx]
+            def new_meshes(predictor: Predictor = predictor) -> list[trimesh.Trimesh]:
                 predictor.forget_meshes()
-                t0 = CLOCK()
-                results = predictor.predict_many(copies, req.v0[idx], req.w0[idx],
-                                                 seconds=list(req.steps[idx] / predictor.rate_hz), orientation_xyzw=req.q0[idx])
-                fastest = min(fastest, CLOCK() - t0)
-            spent[name] += fastest
+                shared = meshes[req.mesh[idx[0]]].copy()
+                return [shared if one_object else meshes[req.mesh[r]].copy() for r in idx]
+
+            seconds, results = best_of(repeats, lambda copies: predictor.predict_many(
+                copies, req.v0[idx], req.w0[idx], seconds=list(req.steps[idx] / predictor.rate_hz),
+                orientation_xyzw=req.q0[idx]), new_meshes)
+            spent[name] += seconds
             for r, result in zip(idx, results):
                 outs[name].set(r, result["com_position"], result["orientation_xyzw"], result["toppled"])
     for name, out in outs.items():
@@ -244,14 +239,16 @@ def physdyn_batched(predictors: dict[str, Predictor], meshes: dict[str, trimesh.
     return outs
 
 
-def best_of(repeats: int, run: Callable[[], Any]) -> float:
-    """The fastest of ``repeats`` timings of ``run()`` (CPU seconds)."""
-    fastest = np.inf
+def best_of(repeats: int, run: Callable[[Any], Any], setup: Callable[[], Any] = lambda: None) -> tuple[float, Any]:
+    """The fastest of ``repeats`` timings of ``run(setup())`` (CPU seconds; ``setup`` untimed: a fresh mesh,
+    emptied caches) and the last run's result."""
+    fastest, result = np.inf, None
     for _ in range(repeats):
+        given = setup()
         t0 = CLOCK()
-        run()
+        result = run(given)
         fastest = min(fastest, CLOCK() - t0)
-    return fastest
+    return fastest, result
 
 
 def sliding_outcome(req: Requests) -> Outcome:

@@ -116,15 +116,11 @@ def contact_geometry(points: torch.Tensor, touching: torch.Tensor | None = None,
     return torch.cat([support.reshape(B, -1), weights, spin_inertia.clamp_min(1e-8), -zmin], dim=1)
 
 
+@np.errstate(invalid="ignore", over="ignore")  # as quiet as torch on a cloud a caller did not check
 def _contact_geometry_one(points: torch.Tensor) -> torch.Tensor:
     """``contact_geometry`` of one cloud (1, N, 3) float32, spread footprint, on numpy: the same float32
     operations in the same order, to the bit (a test compares them), at about half the cost of the loop of
     tiny tensor operations (one new mesh's prediction pays it once)."""
-    with np.errstate(invalid="ignore", over="ignore"):  # as quiet as torch on a cloud a caller did not check
-        return _geometry_one(points)
-
-
-def _geometry_one(points: torch.Tensor) -> torch.Tensor:
     p = points[0].numpy()
     z = p[:, 2]
     zmin = z.min()
