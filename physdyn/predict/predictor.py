@@ -35,10 +35,10 @@ from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_ro
 from physdyn.models.checkpoint_file import SHIPPED
 from physdyn.models.dynamics_module import DynamicsModel
 from physdyn.models.training import load_experiment_config
-from physdyn.predict.body import PreparedBody, initial_pose, preparation_key, prepare_body
+from physdyn.predict.body import PreparedBody, preparation_key, prepare_body
 from physdyn.predict.simulator import SIMULATOR_NAME, simulate_from_state
 from physdyn.sim.cloud_body import forget_clouds
-from physdyn.sim.trajectory import topple_labels
+from physdyn.sim.trajectory import resting_com_positions, topple_labels
 
 BUNDLED_CHECKPOINT = SHIPPED["bundled"]
 DEFAULT_NUM_POINTS = 1024
@@ -100,6 +100,23 @@ def _per_request(value: Any, count: int, name: str, length: int = 3) -> np.ndarr
     for i, row in enumerate(arr):
         as_vector(row, f"{name} of request {i + 1}", length)
     return arr
+
+
+def _posed(bodies: list[PreparedBody], q0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each request's body in its step-0 orientation q0 (R, 4): the resting centre of mass (R, 3), the mesh's
+    own I_zz / m about the vertical (R,), for a contact prior that takes it (``model.contact_inertia=body``)
+    and an outcome correction, and I / m in world axes (R, 3, 3), for a topple classifier that simulates.
+    A batch often pushes one object hundreds of times: each body's requests are posed at once (the same
+    numbers as one at a time, to the bit; tests/predict)."""
+    p0, spin, inertia = np.zeros((len(bodies), 3)), np.zeros(len(bodies)), np.zeros((len(bodies), 3, 3))
+    rows: dict[int, list[int]] = {}
+    for r, body in enumerate(bodies):
+        rows.setdefault(id(body), []).append(r)
+    for group in rows.values():
+        spec, q = bodies[group[0]].spec, q0[group]
+        mass = (spec.inertia_diag, spec.principal_axes, spec.mass, q)
+        p0[group], spin[group], inertia[group] = resting_com_positions(spec, q), vertical_inertia(*mass), world_inertia_per_mass(*mass)
+    return p0, spin, inertia
 
 
 def _per_request_values(value: Any, count: int, name: str) -> list:
@@ -215,18 +232,7 @@ class Predictor:
         else:
             q0 = np.stack([check_orientation(q) for q in _per_request(orientation_xyzw, R, "orientation (x, y, z, w)", 4)])
         bodies = self._bodies(meshes, scales)
-        # Per distinct body and orientation (a batch often pushes a few objects many times): the resting
-        # pose, the mesh's own spin inertia, for a contact prior that takes it (model.contact_inertia=body),
-        # and its inertia tensor, for a topple classifier that simulates (fit-topple --physics).
-        posed: dict[tuple[int, bytes], tuple[np.ndarray, float, np.ndarray]] = {}
-        for body, q in zip(bodies, q0):
-            key = (id(body), q.tobytes())
-            if key not in posed:
-                mass = (body.spec.inertia_diag, body.spec.principal_axes, body.spec.mass, q)
-                posed[key] = (initial_pose(body.spec, q), float(vertical_inertia(*mass)), world_inertia_per_mass(*mass))
-        p0 = np.stack([posed[id(body), q.tobytes()][0] for body, q in zip(bodies, q0)])
-        spin_inertia = np.array([posed[id(body), q.tobytes()][1] for body, q in zip(bodies, q0)])
-        body_inertia = np.stack([posed[id(body), q.tobytes()][2] for body, q in zip(bodies, q0)])
+        p0, spin_inertia, body_inertia = _posed(bodies, q0)
         points = np.stack([body.points_body(self.num_points, self.points_method) for body in bodies])
         classifier = getattr(self.model, "topple_classifier", None)
         dense = None if classifier is None else classifier.num_points  # the cloud its simulations read

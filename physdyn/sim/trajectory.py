@@ -52,6 +52,16 @@ def resting_com_position(spec: RigidBodySpec, orientation_xyzw: np.ndarray) -> n
     return np.array([0.0, 0.0, -world_vertices[:, 2].min()])
 
 
+def resting_com_positions(spec: RigidBodySpec, orientations_xyzw: np.ndarray) -> np.ndarray:
+    """``resting_com_position`` for many orientations (n, 4) of one body -> (n, 3), in one product (a batch of
+    pushes of one object poses it hundreds of times). Each height is computed as the single call computes it."""
+    vertices, turns = spec.body_vertices(), quat_to_matrix(orientations_xyzw).transpose(0, 2, 1)
+    out = np.zeros((len(turns), 3))
+    for lo in range(0, len(turns), 256):  # (256, V, 3) at a time: a few MB whatever the batch
+        out[lo : lo + 256, 2] = -np.matmul(vertices, turns[lo : lo + 256])[..., 2].min(axis=1)
+    return out
+
+
 def topple_labels(orientations_xyzw: np.ndarray) -> tuple[np.ndarray, int]:
     """Per-step labels: 1 from the first step where the initial up direction has tilted past 45 degrees."""
     tilt = tilt_angle(orientations_xyzw[0], orientations_xyzw)

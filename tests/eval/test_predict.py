@@ -413,3 +413,22 @@ def test_the_preparation_cache_is_bounded_and_keeps_the_recently_used(checkpoint
     kept = {key[1] for key in predictor._prepared}
     keys = [preparation_key(b, 1.0)[1] for b in boxes]
     assert kept == {keys[0], keys[2]}
+
+
+def test_a_batch_of_one_object_is_posed_as_each_push_alone(meshes):
+    """Two objects pushed 300 times in turn, each from its own orientation: resting height, I_zz / m and
+    I / m in world axes equal the one-at-a-time functions' to the bit (the batch poses a body at once)."""
+    from physdyn.geometry.mass import vertical_inertia, world_inertia_per_mass
+    from physdyn.predict.predictor import _posed
+    from physdyn.sim.trajectory import resting_com_position
+
+    box, can = prepare_body(str(meshes / "box.obj")), prepare_body(str(meshes / "can.stl"))
+    bodies = [box, can] * 150
+    q0 = np.random.default_rng(0).normal(size=(300, 4))
+    q0 /= np.linalg.norm(q0, axis=1, keepdims=True)
+    p0, spin, inertia = _posed(bodies, q0)
+    for body, q, p, s, i in zip(bodies, q0, p0, spin, inertia):
+        mass = (body.spec.inertia_diag, body.spec.principal_axes, body.spec.mass, q)
+        assert np.array_equal(p, resting_com_position(body.spec, q))
+        assert s == float(vertical_inertia(*mass)) and np.array_equal(i, world_inertia_per_mass(*mass))
+    assert len(np.unique(p0[:, 2])) > 100  # the orientations rest at different heights
