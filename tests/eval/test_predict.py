@@ -432,3 +432,20 @@ def test_a_batch_of_one_object_is_posed_as_each_push_alone(meshes):
         assert np.array_equal(p, resting_com_position(body.spec, q))
         assert s == float(vertical_inertia(*mass)) and np.array_equal(i, world_inertia_per_mass(*mass))
     assert len(np.unique(p0[:, 2])) > 100  # the orientations rest at different heights
+
+
+def test_a_batch_checks_its_rows_at_once_naming_the_first_bad_one_and_normalises_as_one_at_a_time(checkpoint, meshes):
+    from physdyn.predict.predictor import _orientations, check_orientation
+
+    q = np.random.default_rng(1).normal(size=(2000, 4)) * np.geomspace(0.01, 10, 2000)[:, None]
+    assert np.array_equal(_orientations(q, 2000), np.stack([check_orientation(row) for row in q]))
+    predictor = load_predictor(checkpoint)
+    box = str(meshes / "box.obj")
+    lin = np.tile([0.5, 0.0, 0.0], (4, 1))
+    lin[2, 1] = np.nan
+    with pytest.raises(PredictionError, match=r"linear velocity \(lin_vel\) of request 3 must be finite"):
+        predictor.predict_many([box] * 4, lin, [0.0, 0.0, 1.0])
+    turns = np.tile([0.0, 0.0, 0.0, 1.0], (4, 1))
+    turns[3] = 0.0
+    with pytest.raises(PredictionError, match="zero quaternion"):
+        predictor.predict_many([box] * 4, [0.5, 0.0, 0.0], [0.0, 0.0, 1.0], orientation_xyzw=turns)
