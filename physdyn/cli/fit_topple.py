@@ -36,7 +36,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--data", action="append", help="store to fit on (default: the store the model was trained "
                                                     "on); with --pointnet, repeat it for several")
     p.add_argument("--out", required=True, help="the checkpoint to write (.ckpt; may be --checkpoint with --overwrite)")
-    p.add_argument("--num-points", type=int, help="cloud size the classifier reads (default: all the store's points)")
+    p.add_argument("--num-points", type=int, help="cloud size the classifier reads (default: all the store's points); "
+                                                   "with --pointnet, each cloud thinned to it, its hull vertices first "
+                                                   "(a push costs that fraction of the per-point layers)")
     p.add_argument("--physics", action="store_true",
                    help="also read a 1 s PyBullet roll-out of the cloud's hull per push (more accurate; a few ms "
                         "per prediction; docs/model-card.md, Toppling)")
@@ -63,8 +65,8 @@ def run(args: argparse.Namespace) -> int:
     out = checked_out(args.out, args.overwrite)
     if args.num_points is not None and args.num_points < 16:
         raise PhysdynError(f"--num-points must be at least 16, got {args.num_points}")
-    if args.pointnet and (args.physics or args.num_points is not None):
-        raise PhysdynError("--pointnet reads the stores' own clouds and simulates nothing; drop --physics and --num-points")
+    if args.pointnet and args.physics:
+        raise PhysdynError("--pointnet reads the stores' clouds and simulates nothing; drop --physics")
     if not args.pointnet and args.data and len(args.data) > 1:
         raise PhysdynError("the logistic regression fits on one store; pass --data once (or --pointnet for several)")
     if args.pointnet and (min(args.seeds) < 0 or args.steps < 20 or args.batch < 1):
@@ -136,6 +138,10 @@ def _fit_pointnet(args: argparse.Namespace, stores: list, out: Path) -> int:
             raise PhysdynError(f"--data {name} has no training or no validation split; --pointnet needs both")
     if len({s.points.shape[1] for s in stores}) > 1:
         raise PhysdynError(f"--data stores hold clouds of {sorted({s.points.shape[1] for s in stores})} points; use one size")
+    held = int(stores[0].points.shape[1])
+    if args.num_points is not None and args.num_points >= held:
+        raise PhysdynError(f"--num-points {args.num_points}: the stores hold {held} points a cloud; pass fewer to thin "
+                           "them, or drop --num-points to read them whole")
     pushes = sum(int((s.split == 0).sum()) for s in stores)
     print(f"training {len(args.seeds)} networks on {pushes} pushes of {len(stores)} store(s), {args.steps} steps each "
           f"on {args.device}")
@@ -144,7 +150,8 @@ def _fit_pointnet(args: argparse.Namespace, stores: list, out: Path) -> int:
         print(f"  network {seed}: step {step}/{args.steps}, validation accuracy {accuracy:.3f}", flush=True)
 
     classifier, report = fit_pointnet_topple(stores, tuple(args.seeds), args.steps, args.batch, width=args.widths[-1],
-                                             device=args.device, point_widths=tuple(args.widths[:-1]), progress=progress)
+                                             device=args.device, point_widths=tuple(args.widths[:-1]),
+                                             num_points=args.num_points, progress=progress)
     write_with_classifier(args.checkpoint, classifier, out)
     print(f"topple classifier (PointNets) on {', '.join(names)}: validation accuracy {report['val_accuracy']:.3f} "
           f"(always 'no': {report['val_majority']:.3f}; each network {', '.join(f'{a:.3f}' for a in report['network_val_accuracy'])}), "

@@ -100,6 +100,15 @@ def _model_points(store: StoreData, sims: np.ndarray, num_points: int | None, rn
     return points if index is None else np.take_along_axis(points, index[..., None], axis=1)
 
 
+def _thinned_points(classifier: Any, store: StoreData, sims: np.ndarray, made: dict[int, np.ndarray]) -> np.ndarray:
+    """The sims' clouds as a classifier fitted on thinned ones reads them (``body_clouds``), each shape's thinned
+    once into ``made``."""
+    shapes = store.shape_id[sims]
+    for shape in set(shapes.tolist()) - set(made):
+        made[shape] = classifier.body_clouds(store.points[shape][None])[0]
+    return np.stack([made[shape] for shape in shapes.tolist()])
+
+
 def _shapes(baseline: Baseline, store: StoreData, sims: np.ndarray) -> dict[str, np.ndarray]:
     """What a baseline that simulates the shape (``uses_shapes``) needs: every point of each sim's cloud
     (body frame) and its body's I / m in body axes; nothing for the others."""
@@ -117,16 +126,17 @@ def predict_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, truth: 
     rng = np.random.default_rng(seed)
     classifier = getattr(predictor, "topple_classifier", None)
     wants = getattr(classifier, "points_method", None)  # a PointNet classifier reads its own kind of cloud, whole
-    if wants is not None and (wants != store.points_method or store.points.shape[1] != classifier.num_points):
-        raise PhysdynError(f"the checkpoint's topple classifier reads {wants} clouds of {classifier.num_points} points "
+    held = getattr(classifier, "thinned_from", 0) or getattr(classifier, "num_points", None)  # a thinning one reads its clouds thinned
+    if wants is not None and (wants != store.points_method or store.points.shape[1] != held):
+        raise PhysdynError(f"the checkpoint's topple classifier reads {wants} clouds of {held} points "
                            f"and {store.url} holds {store.points_method} ones of {store.points.shape[1]}; test it on a "
-                           f"store made with points_method: {wants}, num_points: {classifier.num_points}")
+                           f"store made with points_method: {wants}, num_points: {held}")
     model_reads = str(getattr(predictor, "data_info", {}).get("points_method") or "surface")
     if wants is not None and model_reads != wants:  # one store cannot feed both: the model would get the wrong kind
         raise PhysdynError(f"the model reads {model_reads} clouds and its topple classifier {wants} ones; a store holds "
                            "one kind, so `physdyn test` cannot feed both: measure it through `predict` "
                            f"(benchmarks/frontier.py), or give the classifier a model trained on {wants} clouds")
-    parts = []
+    parts, thinned = [], {}
     for sl in _chunks(len(sims), batch_size):
         p0, q0 = truth["com_position"][sl, 0], truth["orientation_xyzw"][sl, 0]
         v0, w0 = truth["linear_velocity"][sl, 0], truth["angular_velocity"][sl, 0]
@@ -140,7 +150,9 @@ def predict_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, truth: 
         classifier = getattr(predictor, "topple_classifier", None)
         simulates = classifier is not None or sim_steps(predictor) > 0
         topple_points = None
-        if simulates:  # the classifier's cloud size (else the whole cloud), drawn from a stream of its own: the model's draws stay as they were
+        if getattr(classifier, "thinned_from", 0):  # each shape's cloud thinned, once
+            topple_points = _thinned_points(classifier, store, sims[sl], thinned)
+        elif simulates:  # the classifier's cloud size (else the whole cloud), drawn from a stream of its own: the model's draws stay as they were
             topple_points = _model_points(store, sims[sl], classifier.num_points if classifier is not None else None,
                                           np.random.default_rng([seed, sl.start]))
         parts.append(rollout(predictor, points, q0, p0, v0, w0, steps, warm, topple_points_body=topple_points,

@@ -203,7 +203,10 @@ def rollout(
     K = warm_v.shape[1]
     simulated = None
     if not K and steps and sim_steps(model):
-        simulated = simulated_start(model, topple_points_body if topple_points_body is not None else points_body, q0,
+        # the hull of the classifier's cloud, unless it is a thinned one (a PointNet's, ``thinned_from``)
+        thinned = getattr(getattr(model, "topple_classifier", None), "thinned_from", 0)
+        hull_cloud = topple_points_body if topple_points_body is not None and not thinned else points_body
+        simulated = simulated_start(model, hull_cloud, q0,
                                     com_position0, lin_vel0, ang_vel0, min(sim_steps(model), steps), body_inertia)
         warm_v, warm_w = simulated["linear_velocity"][:, 1:], simulated["angular_velocity"][:, 1:]
         K = warm_v.shape[1]

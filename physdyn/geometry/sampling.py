@@ -67,6 +67,29 @@ def hull_surface_points(mesh: trimesh.Trimesh, num_points: int, seed: int = 0,
     return np.concatenate([kept, samples.astype(np.float32)])
 
 
+def thin_hull_surface(points: np.ndarray, count: int) -> np.ndarray:
+    """(count, 3) float32 of a ``hull_surface`` cloud (N, 3), N >= count, as that representation builds a
+    smaller one: the points on the cloud's own hull first (qhull's vertices of the float32 cloud: the mesh's
+    hull vertices and, from float32 rounding, some samples lying on its flat faces; farthest-point thinned
+    from the lowest when there are more than ``count``), then its other points in their order (uniform
+    surface samples). What a topple PointNet fitted with ``--num-points`` reads, made from the cloud the
+    model already has: no second sampling of the mesh, and the same at training (stores hold only clouds)
+    as at prediction."""
+    points = np.asarray(points, dtype=np.float32)
+    if count >= len(points):
+        return points
+    from physdyn.geometry.hull import point_hull
+
+    hull = point_hull(points.astype(np.float64))
+    on_hull = np.zeros(len(points), dtype=bool)
+    on_hull[np.arange(len(points)) if hull is None else hull.vertex_index] = True
+    vertices = points[on_hull]
+    vertices = np.roll(vertices, -int(np.argmin(vertices[:, 2])), axis=0)
+    if len(vertices) >= count:
+        return np.ascontiguousarray(farthest_point_sample(vertices, count), dtype=np.float32)
+    return np.concatenate([vertices, points[~on_hull][: count - len(vertices)]])
+
+
 def uniform_surface_samples(mesh: trimesh.Trimesh, count: int, seed: int) -> np.ndarray:
     """(count, 3) float64 points uniform over the surface of ``mesh``: the very draws and arithmetic of
     ``trimesh.sample.sample_surface(mesh, count, seed=seed)`` (the stores' clouds stay as they were), but

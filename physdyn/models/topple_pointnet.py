@@ -11,7 +11,8 @@ frame of the push's travel (x along the step-0 horizontal velocity, z up), each 
 lowest one, and seven scalars: the step-0 velocity and spin in that frame and I_zz / m about the vertical.
 A PointNet (4 -> 64 -> 128 -> width per point by default, max-pooled) and a head of two hidden layers give the logit;
 the probability is the mean of the networks' (an ensemble of seeds). Per step, the probability of having
-toppled by step t is P(topples) x F(t), as ``ToppleClassifier``'s.
+toppled by step t is P(topples) x F(t), as ``ToppleClassifier``'s. Fitted with ``--num-points``, it reads
+each cloud thinned to that size, the points on its hull first (``body_clouds``), wherever it runs.
 """
 
 from __future__ import annotations
@@ -107,6 +108,7 @@ class PointNetToppleClassifier:
     num_points: int = 256
     points_method: str = POINTS_METHOD
     point_widths: tuple[int, ...] = POINT_WIDTHS
+    thinned_from: int = 0  # > 0: it reads hull_surface clouds of this size thinned to num_points (``body_clouds``)
     physics: bool = False  # it simulates nothing (Predictor.without_simulator keeps it)
     _modules: list[ToppleNet] = field(default_factory=list, repr=False, compare=False)
 
@@ -130,6 +132,18 @@ class PointNetToppleClassifier:
             return np.mean([torch.sigmoid(_in_passes(net, cloud, scalars)).numpy() for net in self._modules],
                            axis=0).astype(np.float64)
 
+    def body_clouds(self, points_body: np.ndarray) -> np.ndarray:
+        """The clouds it reads (S, num_points, 3) from the model's (S, N, 3), body frame: each thinned by
+        ``thin_hull_surface`` when the classifier was fitted on thinned ones (``fit-topple --pointnet
+        --num-points``), else as they are. One per shape, before a push turns it: the thinning starts from
+        the body frame's lowest hull vertex, as its training clouds did."""
+        points_body = np.asarray(points_body, dtype=np.float32)
+        if not self.thinned_from or points_body.shape[1] <= self.num_points:
+            return points_body
+        from physdyn.geometry.sampling import thin_hull_surface
+
+        return np.stack([thin_hull_surface(cloud, self.num_points) for cloud in points_body])
+
     def per_step(self, probability: np.ndarray, steps: int) -> np.ndarray:
         """(B,) -> (B, steps + 1): the probability of having toppled by step t (0 at step 0)."""
         return per_step_probability(self.timing, probability, steps)
@@ -147,13 +161,14 @@ class PointNetToppleClassifier:
                 "scalars_mean": self.scalars_mean.tolist(), "scalars_std": self.scalars_std.tolist(),
                 "timing": self.timing.tolist(), "rate_hz": float(self.rate_hz), "width": int(self.width),
                 "num_points": int(self.num_points), "points_method": self.points_method,
-                "point_widths": [int(w) for w in self.point_widths]}
+                "point_widths": [int(w) for w in self.point_widths], "thinned_from": int(self.thinned_from)}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "PointNetToppleClassifier":
         return cls([dict(s) for s in d["networks"]], np.asarray(d["scalars_mean"]), np.asarray(d["scalars_std"]),
                    np.asarray(d["timing"]), float(d["rate_hz"]), int(d["width"]), int(d["num_points"]),
-                   str(d.get("points_method", POINTS_METHOD)), tuple(int(w) for w in d.get("point_widths", POINT_WIDTHS)))
+                   str(d.get("points_method", POINTS_METHOD)), tuple(int(w) for w in d.get("point_widths", POINT_WIDTHS)),
+                   int(d.get("thinned_from", 0)))
 
 
 @dataclass
@@ -253,11 +268,20 @@ def store_training_set(stores: list[Any]) -> TrainingSet:
 
 def fit_pointnet_topple(stores: list[Any], seeds: tuple[int, ...] = (0,), steps: int = 3000, batch: int = 256,
                         width: int = 256, device: str = "cpu", minutes: float | None = None,
-                        point_widths: tuple[int, ...] = POINT_WIDTHS,
+                        point_widths: tuple[int, ...] = POINT_WIDTHS, num_points: int | None = None,
                         progress: Callable[[int, int, float], None] | None = None) -> tuple[PointNetToppleClassifier, dict[str, Any]]:
     """One network per seed on the stores' training splits, each chosen on their validation splits, as one
-    classifier. Returns it and a report (validation accuracy of each network and of the ensemble, counts)."""
+    classifier. ``num_points`` below the stores' cloud size: the networks read each cloud thinned to it
+    (``thin_hull_surface``), and so does the classifier at prediction (``body_clouds``): the per-point
+    layers' cost a push is proportional to it. Returns the classifier and a report (validation accuracy of
+    each network and of the ensemble, counts)."""
     data = store_training_set(stores)
+    stored = int(data.clouds.shape[1])
+    thinned_from = stored if num_points is not None and num_points < stored else 0
+    if thinned_from:
+        from physdyn.geometry.sampling import thin_hull_surface
+
+        data.clouds = np.stack([thin_hull_surface(cloud, num_points) for cloud in data.clouds])
     train, val = np.flatnonzero(data.split == 0), np.flatnonzero(data.split == 1)
     runs = [train_network(data, train, val, steps, batch, width, seed, True, device, minutes,
                           None if progress is None else (lambda step, acc, s=seed: progress(s, step, acc)), point_widths)
@@ -265,8 +289,9 @@ def fit_pointnet_topple(stores: list[Any], seeds: tuple[int, ...] = (0,), steps:
     # one standardisation for the ensemble: every run's is the training split's, the same numbers
     classifier = PointNetToppleClassifier([r["state_dict"] for r in runs], runs[0]["scalars_mean"],
                                           runs[0]["scalars_std"], topple_timing(stores), float(stores[0].rate_hz), width,
-                                          int(data.clouds.shape[1]), point_widths=tuple(point_widths))
-    first = stores_first_frames(stores, split=1)  # the validation pushes, in the order of ``val``
+                                          int(data.clouds.shape[1]), point_widths=tuple(point_widths),
+                                          thinned_from=thinned_from)
+    first = stores_first_frames(stores, split=1, clouds=classifier.body_clouds)  # the validation pushes, in ``val``'s order
     p = classifier.probability(first["points"], first["v0"], first["w0"], first["spin"])
     report = {"val_accuracy": float(np.mean((p > 0.5) == (data.label[val] > 0.5))),
               "network_val_accuracy": [r["val_accuracy"] for r in runs], "steps": [r["steps"] for r in runs],
@@ -275,9 +300,11 @@ def fit_pointnet_topple(stores: list[Any], seeds: tuple[int, ...] = (0,), steps:
     return classifier, report
 
 
-def stores_first_frames(stores: list[Any], split: int | None = None) -> dict[str, np.ndarray]:
+def stores_first_frames(stores: list[Any], split: int | None = None,
+                        clouds: Callable[[np.ndarray], np.ndarray] = np.asarray) -> dict[str, np.ndarray]:
     """The pushes' clouds turned to their step-0 orientation (P, N, 3), step-0 velocities, I_zz / m: every
-    push of the stores in order, or those of one ``split``."""
+    push of the stores in order, or those of one ``split``. ``clouds``: what a classifier reads of each
+    store's clouds (S, N, 3) (``PointNetToppleClassifier.body_clouds``)."""
     from physdyn.data.windows import store_spin_inertia, world_oriented_points
 
     out: dict[str, list[np.ndarray]] = {"points": [], "v0": [], "w0": [], "spin": []}
@@ -285,7 +312,7 @@ def stores_first_frames(stores: list[Any], split: int | None = None) -> dict[str
         sims = np.arange(store.num_sims) if split is None else np.flatnonzero(store.split == split)
         first = store.start[sims]
         q0 = store.orientation_xyzw[first]
-        out["points"].append(world_oriented_points(store.points[store.shape_id[sims]], q0))
+        out["points"].append(world_oriented_points(clouds(store.points)[store.shape_id[sims]], q0))
         out["v0"].append(store.linear_velocity[first])
         out["w0"].append(store.angular_velocity[first])
         out["spin"].append(store_spin_inertia(store, sims, q0))

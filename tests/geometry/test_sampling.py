@@ -63,3 +63,26 @@ def test_prepared_body_points_are_in_the_body_frame_and_repeatable():
     assert _rows(hull_body) <= _rows(a)
     with pytest.raises(PhysdynError, match="points method 'grid' is unknown"):
         shape_points(body.mesh, 64, "grid")
+
+
+def test_a_thinned_hull_surface_cloud_keeps_its_hull_points_first_then_its_own_samples():
+    from physdyn.geometry.hull import point_hull
+    from physdyn.geometry.sampling import thin_hull_surface
+
+    box = trimesh.creation.box((0.1, 0.2, 0.3))
+    cloud = hull_surface_points(box, 64)
+    thin = thin_hull_surface(cloud, 20)
+    # the eight corners first (a box's samples lie exactly on its faces: none is a hull point), then the
+    # cloud's own samples in their order
+    assert {tuple(p) for p in thin[:8]} == {tuple(p) for p in box.vertices.astype(np.float32)}
+    np.testing.assert_array_equal(thin[8:], cloud[8:20])
+    assert thin.dtype == np.float32 and ConvexHull(thin).volume == pytest.approx(box.volume, rel=1e-6)
+    # more hull points than the count: hull points only, spread from the lowest over the whole can
+    can = trimesh.creation.cylinder(radius=0.05, height=0.2, sections=64)
+    cloud = hull_surface_points(can, 256)
+    thin = thin_hull_surface(cloud, 32)
+    on_hull = {tuple(p) for p in cloud[point_hull(cloud.astype(np.float64)).vertex_index]}
+    assert len(on_hull) > 32 and {tuple(p) for p in thin} <= on_hull
+    assert thin[0, 2] == cloud[:, 2].min()
+    np.testing.assert_allclose(np.ptp(thin, axis=0), np.ptp(cloud, axis=0), rtol=0.02)
+    np.testing.assert_array_equal(thin_hull_surface(cloud, 256), cloud)  # nothing to thin

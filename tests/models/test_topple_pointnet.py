@@ -172,3 +172,65 @@ def test_many_pushes_go_through_the_network_a_few_at_a_time_with_the_same_number
         np.testing.assert_allclose(in_passes, classifier.probability(*args), rtol=0, atol=1e-6)
         monkeypatch.setattr(topple_pointnet, "PUSHES_PER_PASS", 32)
         assert len(in_passes) == count
+
+
+def test_fitted_on_thinned_clouds_it_reads_them_thinned_in_fitting_testing_and_prediction(hull_store, tmp_path,
+                                                                                           monkeypatch):
+    from physdyn.cli.fit_topple import write_with_classifier
+    from physdyn.eval.evaluate import gather_truth, predict_rollouts
+    from physdyn.geometry.mass import vertical_inertia
+    from physdyn.geometry.sampling import thin_hull_surface
+    from physdyn.models.checkpoint_file import read_torch_file, write_torch_file
+    from physdyn.models.export import export_checkpoint
+    from physdyn.models.topple_classifier import topple_classifier_from_dict
+    from physdyn.predict.body import prepare_body
+    from physdyn.predict.predictor import BUNDLED_CHECKPOINT, contact_prior_predictor, load_predictor
+
+    torch.set_num_threads(1)
+    store = load_store(hull_store)
+    classifier, report = fit_pointnet_topple([store], seeds=(0,), steps=300, batch=32, width=16, num_points=24)
+    assert (classifier.num_points, classifier.thinned_from) == (24, 64)
+    assert report["val_accuracy"] >= report["val_majority"]
+    clouds = classifier.body_clouds(store.points[:5])
+    assert clouds.shape == (5, 24, 3) and np.array_equal(clouds[3], thin_hull_surface(store.points[3], 24))
+    # through a checkpoint; a file from before thinning reads its clouds whole
+    write_torch_file({"topple_classifier": classifier.to_dict()}, tmp_path / "c.ckpt")
+    assert topple_classifier_from_dict(read_torch_file(tmp_path / "c.ckpt", "a checkpoint")["topple_classifier"]).thinned_from == 64
+    old = classifier.to_dict()
+    del old["thinned_from"]
+    assert topple_classifier_from_dict(old).thinned_from == 0
+    # `physdyn test`'s roll-outs: each push's probability is the classifier's on its shape's thinned cloud
+    model = contact_prior_predictor(num_points=64).model
+    model.topple_classifier = classifier
+    sims = np.arange(12)
+    rolled = predict_rollouts(model, store, sims, gather_truth(store, sims, 10))
+    first = stores_first_frames([store], clouds=classifier.body_clouds)
+    expected = classifier.probability(first["points"][:12], first["v0"][:12], first["w0"][:12], first["spin"][:12])
+    np.testing.assert_allclose(rolled.topple_probability[:, -1], expected * classifier.per_step(np.ones(1), 10)[0, -1],
+                               rtol=1e-5)
+    # a prediction: the body's hull_surface cloud of the stores' size, thinned
+    networks = export_checkpoint(BUNDLED_CHECKPOINT, tmp_path / "networks.ckpt", settings=["model.sim_seconds=0"])
+    write_with_classifier(networks, classifier, tmp_path / "thin.ckpt")
+    box = trimesh.creation.box((0.06, 0.06, 0.3))
+    result = load_predictor(str(tmp_path / "thin.ckpt")).predict(box, [1.5, 0.0, 0.0], [0.0, 6.0, 0.0], seconds=1.0)
+    body = prepare_body(box)
+    cloud = thin_hull_surface(body.points_body(64, "hull_surface"), 24)[None]
+    spin = np.atleast_1d(vertical_inertia(body.spec.inertia_diag, body.spec.principal_axes, body.spec.mass,
+                                          np.array([0.0, 0.0, 0.0, 1.0])))
+    expected = classifier.probability(cloud, np.array([[1.5, 0.0, 0.0]]), np.array([[0.0, 6.0, 0.0]]), spin)
+    assert result["topple_probability"][-1] == pytest.approx(expected[0] * classifier.timing[-1], rel=1e-5)
+    # with a simulated start, PyBullet runs on the hull of the model's own cloud, not of the thinned one
+    import physdyn.eval.rollout as rollout_module
+
+    write_with_classifier(BUNDLED_CHECKPOINT, classifier, tmp_path / "hybrid.ckpt")
+    hybrid = load_predictor(str(tmp_path / "hybrid.ckpt"))
+    simulate, seen = rollout_module.simulated_start, []
+    monkeypatch.setattr(rollout_module, "simulated_start", lambda model, points, *a: seen.append(points.shape) or simulate(model, points, *a))
+    hybrid.predict(box, [1.0, 0.0, 0.0], [0.0, 0.0, 1.0], seconds=1.0)
+    assert seen == [(1, hybrid.num_points, 3)]
+    # asked to thin to as many points as the stores hold: one line, nothing written
+    from physdyn.cli import main
+
+    assert main(["fit-topple", "--pointnet", "--num-points", "64", "--checkpoint", str(networks), "--data", hull_store,
+                 "--out", str(tmp_path / "whole.ckpt")]) == 2
+    assert not (tmp_path / "whole.ckpt").exists()
