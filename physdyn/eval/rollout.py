@@ -49,6 +49,7 @@ class RolloutResult:
     fed_linear_velocity: np.ndarray
     fed_angular_velocity: np.ndarray
     extra: dict[str, Any] = field(default_factory=dict)
+    toppled: np.ndarray | None = None  # (B,) by each roll-out's own end (``toppled_by_own_end``); None from baselines
 
     @property
     def num_steps(self) -> int:
@@ -256,16 +257,18 @@ def rollout(
         probability = probability.copy()
         probability[:, : K + 1] = np.where(over, 1.0, probability[:, : K + 1])
         probability[:, K + 1 :] = np.where(over[:, -1:], 1.0, probability[:, K + 1 :])
+    # one verdict per push, at its own end: the correction moves only pushes that did not topple, and
+    # ``Predictor.predict_many`` reports it (a correction turns about the vertical: the tilt stays)
+    toppled = toppled_by_own_end(probability, q0, states["orientation_xyzw"], lengths)
     if getattr(model, "outcome_correction", None) is not None:  # fit-outcome: where the push ends, learned
         from physdyn.models.outcome_correction import correct_rollout  # torch: only for models that have one
 
-        toppled = toppled_by_own_end(probability, q0, states["orientation_xyzw"], lengths)
         states = {**states, **{k: np.array(v) for k, v in deltas.items()}}
         correct_rollout(model, states, _numpy(lin_vel0).reshape(B, 3), _numpy(ang_vel0).reshape(B, 3), given_spin_inertia,
                         points, toppled, lengths)
         deltas = {k: states.pop(k) for k in DELTA_KEYS}
     return RolloutResult(**states, topple_probability=probability, **deltas, fed_linear_velocity=fed_v,
-                         fed_angular_velocity=fed_w)
+                         fed_angular_velocity=fed_w, toppled=toppled)
 
 
 def toppled_by_own_end(probability: np.ndarray | None, q0: np.ndarray, orientations: np.ndarray,

@@ -28,7 +28,6 @@ from physdyn.config import PRESETS, PhysicsConfig
 from physdyn.data.normalization import Normalization
 from physdyn.errors import PhysdynError, PredictionError, PredictionWarning
 from physdyn.eval.baselines import load_checkpoint
-from physdyn.eval.metrics import TOPPLE_THRESHOLD
 from physdyn.eval.rollout import rollout, sim_steps
 from physdyn.geometry.mass import vertical_inertia, world_inertia_per_mass
 from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_rotvec
@@ -38,7 +37,7 @@ from physdyn.models.training import load_experiment_config
 from physdyn.predict.body import PreparedBody, preparation_key, prepare_body
 from physdyn.predict.simulator import SIMULATOR_NAME, simulate_from_state
 from physdyn.sim.cloud_body import forget_clouds
-from physdyn.sim.trajectory import resting_com_positions, topple_labels
+from physdyn.sim.trajectory import resting_com_positions
 
 BUNDLED_CHECKPOINT = SHIPPED["bundled"]
 DEFAULT_NUM_POINTS = 1024
@@ -268,12 +267,9 @@ class Predictor:
             for b, r in enumerate(idx):
                 T = steps[r]
                 out = {k: None if v is None else v[:T] for k, v in rolled.sequence(b).items()}
-                probability = out["topple_probability"]
-                if probability is not None:
-                    toppled = bool(np.any(probability >= TOPPLE_THRESHOLD))
-                else:  # no topple head: the 45 degree rule on the predicted orientations
-                    toppled = bool(topple_labels(out["orientation_xyzw"])[1] >= 0)
-                results[r] = self._result(out, probability, toppled, bodies[r], self.name)
+                # the roll-out's verdict at the request's own end: its probabilities, or with no topple output
+                # the 45 degree rule on its poses
+                results[r] = self._result(out, out["topple_probability"], bool(rolled.toppled[b]), bodies[r], self.name)
         for r in np.flatnonzero(compare):
             sim = simulate_from_state(bodies[r].spec, q0[r], v0[r], w0[r], self.rate_hz, steps[r], self.physics)
             results[r]["simulated"] = self._result(sim, sim["topple_label"].astype(np.float64),

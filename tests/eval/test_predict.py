@@ -287,6 +287,8 @@ def test_predict_many_equals_each_request_predicted_alone_in_any_chunking(checkp
             assert a["com_position"].shape == b["com_position"].shape and a["mesh"] == b["mesh"]
             for key in ("com_position", "orientation_xyzw", "linear_velocity", "angular_velocity", "topple_probability"):
                 np.testing.assert_allclose(a[key], b[key], rtol=1e-5, atol=1e-5, err_msg=key)
+            # the verdict is the request's own: its probabilities up to its own end, not the padded batch's
+            assert a["toppled"] == b["toppled"] == bool((a["topple_probability"] >= 0.5).any())
     with pytest.raises(PredictionError, match="expected 3 numbers or 5 rows"):
         predictor.predict_many(files, lin[:3], ang, 1.0)
     with pytest.raises(PredictionError, match="compare_sim must be true or false"):
