@@ -100,15 +100,6 @@ def _model_points(store: StoreData, sims: np.ndarray, num_points: int | None, rn
     return points if index is None else np.take_along_axis(points, index[..., None], axis=1)
 
 
-def _thinned_points(classifier: Any, store: StoreData, sims: np.ndarray, made: dict[int, np.ndarray]) -> np.ndarray:
-    """The sims' clouds as a classifier fitted on thinned ones reads them (``body_clouds``), each shape's thinned
-    once into ``made``."""
-    shapes = store.shape_id[sims]
-    for shape in set(shapes.tolist()) - set(made):
-        made[shape] = classifier.body_clouds(store.points[shape][None])[0]
-    return np.stack([made[shape] for shape in shapes.tolist()])
-
-
 def _shapes(baseline: Baseline, store: StoreData, sims: np.ndarray) -> dict[str, np.ndarray]:
     """What a baseline that simulates the shape (``uses_shapes``) needs: every point of each sim's cloud
     (body frame) and its body's I / m in body axes; nothing for the others."""
@@ -125,7 +116,7 @@ def predict_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, truth: 
     steps = truth["delta_position"].shape[1]
     rng = np.random.default_rng(seed)
     classifier = getattr(predictor, "topple_classifier", None)
-    wants = getattr(classifier, "points_method", None)  # a PointNet classifier reads its own kind of cloud, whole
+    wants = getattr(classifier, "points_method", None)  # a PointNet reads its kind of cloud, given whole (thinned by it)
     held = getattr(classifier, "thinned_from", 0) or getattr(classifier, "num_points", None)  # a thinning one reads its clouds thinned
     if wants is not None and (wants != store.points_method or store.points.shape[1] != held):
         raise PhysdynError(f"the checkpoint's topple classifier reads {wants} clouds of {held} points "
@@ -136,7 +127,7 @@ def predict_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, truth: 
         raise PhysdynError(f"the model reads {model_reads} clouds and its topple classifier {wants} ones; a store holds "
                            "one kind, so `physdyn test` cannot feed both: measure it through `predict` "
                            f"(benchmarks/frontier.py), or give the classifier a model trained on {wants} clouds")
-    parts, thinned = [], {}
+    parts = []
     for sl in _chunks(len(sims), batch_size):
         p0, q0 = truth["com_position"][sl, 0], truth["orientation_xyzw"][sl, 0]
         v0, w0 = truth["linear_velocity"][sl, 0], truth["angular_velocity"][sl, 0]
@@ -150,10 +141,9 @@ def predict_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, truth: 
         classifier = getattr(predictor, "topple_classifier", None)
         simulates = classifier is not None or sim_steps(predictor) > 0
         topple_points = None
-        if getattr(classifier, "thinned_from", 0):  # each shape's cloud thinned, once
-            topple_points = _thinned_points(classifier, store, sims[sl], thinned)
-        elif simulates:  # the classifier's cloud size (else the whole cloud), drawn from a stream of its own: the model's draws stay as they were
-            topple_points = _model_points(store, sims[sl], classifier.num_points if classifier is not None else None,
+        if simulates:  # the classifier's cloud size (else the whole cloud), drawn from a stream of its own: the model's draws stay as they were
+            topple_points = _model_points(store, sims[sl], (getattr(classifier, "thinned_from", 0) or classifier.num_points)
+                                          if classifier is not None else None,
                                           np.random.default_rng([seed, sl.start]))
         parts.append(rollout(predictor, points, q0, p0, v0, w0, steps, warm, topple_points_body=topple_points,
                              spin_inertia=store_spin_inertia(store, sims[sl], q0),

@@ -175,7 +175,8 @@ def rollout(
     A model with ``rollout_changes`` (``DynamicsModel``) runs the loop in torch; ``stepwise=True`` forces
     the reference loop through ``step`` (the same numbers to float32 precision; tests compare them).
     A model with a ``topple_classifier`` (``physdyn fit-topple``) reports its per-step probabilities
-    instead of the head's, from ``topple_points_body`` (B, N', 3) (default: ``points_body``).
+    instead of the head's, from ``topple_points_body`` (B, N', 3) (default: ``points_body``; one fitted on thinned
+    clouds, ``fit-topple --num-points``, thins them itself).
     spin_inertia: optional (B,) I_zz / m of each body about the world vertical at step 0, for models whose
     contact prior takes the body's (``model.contact_inertia=body``; ``physdyn.geometry.mass.vertical_inertia``)
     and for an outcome correction (``physdyn fit-outcome``; without it or ``body_inertia``, estimated from
@@ -204,10 +205,7 @@ def rollout(
     K = warm_v.shape[1]
     simulated = None
     if not K and steps and sim_steps(model):
-        # the hull of the classifier's cloud, unless it is a thinned one (a PointNet's, ``thinned_from``)
-        thinned = getattr(getattr(model, "topple_classifier", None), "thinned_from", 0)
-        hull_cloud = topple_points_body if topple_points_body is not None and not thinned else points_body
-        simulated = simulated_start(model, hull_cloud, q0,
+        simulated = simulated_start(model, topple_points_body if topple_points_body is not None else points_body, q0,
                                     com_position0, lin_vel0, ang_vel0, min(sim_steps(model), steps), body_inertia)
         warm_v, warm_w = simulated["linear_velocity"][:, 1:], simulated["angular_velocity"][:, 1:]
         K = warm_v.shape[1]
@@ -245,6 +243,8 @@ def rollout(
     classifier = getattr(model, "topple_classifier", None)
     if classifier is not None:
         cloud = points if topple_points_body is None else _oriented(_numpy(topple_points_body), q0)
+        if getattr(classifier, "thinned_from", 0):  # a PointNet fitted on thinned clouds thins what it is given
+            cloud = _oriented(classifier.body_clouds(_numpy(points_body if topple_points_body is None else topple_points_body)), q0)
         probability = classifier.predict(cloud, _numpy(lin_vel0).reshape(B, 3), _numpy(ang_vel0).reshape(B, 3), steps,
                                          None if body_inertia is None else _numpy(body_inertia).reshape(B, 3, 3))
     if simulated is not None and probability is not None:

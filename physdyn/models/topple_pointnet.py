@@ -12,7 +12,7 @@ lowest one, and seven scalars: the step-0 velocity and spin in that frame and I_
 A PointNet (4 -> 64 -> 128 -> width per point by default, max-pooled) and a head of two hidden layers give the logit;
 the probability is the mean of the networks' (an ensemble of seeds). Per step, the probability of having
 toppled by step t is P(topples) x F(t), as ``ToppleClassifier``'s. Fitted with ``--num-points``, it reads
-each cloud thinned to that size, the points on its hull first (``body_clouds``), wherever it runs.
+each cloud thinned to that size, its hull vertices first (``body_clouds``), wherever it runs.
 """
 
 from __future__ import annotations
@@ -36,6 +36,7 @@ MIRROR_SCALARS = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0, 1.0], dtype=np.float
 MIN_STEPS = 20  # training steps: the best of 20 validation checks is kept
 PUSHES_PER_PASS = 32  # pushes per forward pass at prediction (``_in_passes``)
 POINT_WIDTHS = (64, 128)  # the per-point layers' widths before the last (of ``width``): the per-push cost
+THINNED_KEPT = 256  # thinned clouds kept by a classifier, the latest (``body_clouds``)
 INERTIA_SHAPE_FACTOR = 0.8  # I_zz / m from a bare cloud: 0.8 x its mean squared horizontal radius (the contact prior's)
 
 
@@ -111,6 +112,7 @@ class PointNetToppleClassifier:
     thinned_from: int = 0  # > 0: it reads hull_surface clouds of this size thinned to num_points (``body_clouds``)
     physics: bool = False  # it simulates nothing (Predictor.without_simulator keeps it)
     _modules: list[ToppleNet] = field(default_factory=list, repr=False, compare=False)
+    _thinned: dict[bytes, np.ndarray] = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self._modules = []
@@ -133,16 +135,25 @@ class PointNetToppleClassifier:
                            axis=0).astype(np.float64)
 
     def body_clouds(self, points_body: np.ndarray) -> np.ndarray:
-        """The clouds it reads (S, num_points, 3) from the model's (S, N, 3), body frame: each thinned by
+        """The clouds it reads (B, num_points, 3) from those it is given (B, N, 3), body frame: each thinned by
         ``thin_hull_surface`` when the classifier was fitted on thinned ones (``fit-topple --pointnet
-        --num-points``), else as they are. One per shape, before a push turns it: the thinning starts from
-        the body frame's lowest hull vertex, as its training clouds did."""
+        --num-points``; given its ``thinned_from``-point clouds), else as they are. Thinned before a push
+        turns them (from the body frame's lowest hull vertex, as its training clouds were), each distinct
+        cloud once: a batch of one object's pushes repeats one cloud hundreds of times."""
         points_body = np.asarray(points_body, dtype=np.float32)
         if not self.thinned_from or points_body.shape[1] <= self.num_points:
             return points_body
         from physdyn.geometry.sampling import thin_hull_surface
 
-        return np.stack([thin_hull_surface(cloud, self.num_points) for cloud in points_body])
+        out = np.empty((len(points_body), self.num_points, 3), dtype=np.float32)
+        for b, cloud in enumerate(points_body):
+            key = cloud.tobytes()
+            if key not in self._thinned:
+                if len(self._thinned) >= THINNED_KEPT:
+                    self._thinned.pop(next(iter(self._thinned)))  # the oldest
+                self._thinned[key] = thin_hull_surface(cloud, self.num_points)
+            out[b] = self._thinned[key]
+        return out
 
     def per_step(self, probability: np.ndarray, steps: int) -> np.ndarray:
         """(B,) -> (B, steps + 1): the probability of having toppled by step t (0 at step 0)."""

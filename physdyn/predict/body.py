@@ -15,7 +15,6 @@ import trimesh
 from physdyn.config import DataConfig, MassConfig
 from physdyn.errors import PredictionError, ShapeError
 from physdyn.geometry.mesh_io import load_mesh
-from physdyn.geometry.sampling import thin_hull_surface
 from physdyn.sim.body import body_surface_points, rigid_body
 from physdyn.sim.trajectory import resting_com_position
 
@@ -42,14 +41,6 @@ class PreparedBody:
             self._points[num_points, method] = body_surface_points(self.mesh, self.spec, num_points,
                                                                    DataConfig().oversample, POINTS_SEED, method)
         return self._points[num_points, method]
-
-    def thinned_points(self, num_points: int, count: int) -> np.ndarray:
-        """(count, 3) float32: the ``hull_surface`` cloud of ``num_points`` thinned to ``count``, its hull
-        vertices first (``thin_hull_surface``; what a topple PointNet fitted with ``--num-points`` reads)."""
-        key = (count, f"hull_surface thinned from {num_points}")
-        if key not in self._points:
-            self._points[key] = thin_hull_surface(self.points_body(num_points, "hull_surface"), count)
-        return self._points[key]
 
 
 def prepare_body(mesh: Any, scale: float = 1.0, density: float | None = None) -> PreparedBody:

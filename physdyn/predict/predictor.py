@@ -75,6 +75,9 @@ def check_seconds(seconds: Any) -> float:
     return s
 
 
+ZERO_QUATERNION = "orientation (x, y, z, w) is the zero quaternion; pass a rotation, e.g. 0 0 0 1"
+
+
 def check_orientation(orientation_xyzw: Any) -> np.ndarray:
     """Unit quaternion (x, y, z, w) from ``orientation_xyzw``; identity (the mesh frame as is) for None."""
     if orientation_xyzw is None:
@@ -82,7 +85,7 @@ def check_orientation(orientation_xyzw: Any) -> np.ndarray:
     q = as_vector(orientation_xyzw, "orientation (x, y, z, w)", 4)
     norm = float(np.linalg.norm(q))
     if norm < 1e-9:
-        raise PredictionError("orientation (x, y, z, w) is the zero quaternion; pass a rotation, e.g. 0 0 0 1")
+        raise PredictionError(ZERO_QUATERNION)
     return q / norm
 
 
@@ -112,7 +115,7 @@ def _orientations(orientation_xyzw: Any, count: int) -> np.ndarray:
     q = _per_request(orientation_xyzw, count, "orientation (x, y, z, w)", 4)
     norm = np.sqrt(np.matmul(q[:, None, :], q[:, :, None])[:, 0, 0])
     if (norm < 1e-9).any():
-        check_orientation(q[int(np.argmax(norm < 1e-9))])  # its one-line error
+        raise PredictionError(ZERO_QUATERNION)
     return q / norm[:, None]
 
 
@@ -248,10 +251,10 @@ class Predictor:
         classifier = getattr(self.model, "topple_classifier", None)
         dense = None if classifier is None else classifier.num_points  # the cloud its simulations read
         method = getattr(classifier, "points_method", "surface")  # a PointNet classifier reads hull_surface
-        thins = getattr(classifier, "thinned_from", 0)  # a PointNet fitted on thinned clouds (fit-topple --num-points)
+        # a PointNet fitted on thinned clouds (fit-topple --num-points) is given the clouds it thins
+        dense = getattr(classifier, "thinned_from", 0) or dense
         topple_points = None if classifier is None and not sim_steps(self.model) else np.stack(
-            [body.thinned_points(thins, dense) if thins else body.points_body(dense or DEFAULT_NUM_POINTS, method)
-             for body in bodies])
+            [body.points_body(dense or DEFAULT_NUM_POINTS, method) for body in bodies])
         results: list[dict[str, Any] | None] = [None] * R
         # Longest first, then one roll-out per chunk at the chunk's longest length: a roll-out is causal (each
         # step reads only earlier ones), so a shorter request's steps are exactly its own roll-out's and the

@@ -451,3 +451,22 @@ def test_a_batch_checks_its_rows_at_once_naming_the_first_bad_one_and_normalises
     turns[3] = 0.0
     with pytest.raises(PredictionError, match="zero quaternion"):
         predictor.predict_many([box] * 4, [0.5, 0.0, 0.0], [0.0, 0.0, 1.0], orientation_xyzw=turns)
+
+
+def test_each_request_of_a_padded_batch_is_judged_toppled_at_its_own_end(checkpoint, meshes):
+    """A classifier whose probability passes 0.5 at step 20: a 1 s request (16 states) ends before it, a 2 s
+    one after; padded into one roll-out of 31 states, each keeps its own verdict."""
+
+    class Rising:
+        num_points, points_method, physics, thinned_from = 64, "hull_surface", False, 0
+
+        def predict(self, points_world, lin_vel, ang_vel, steps, inertia=None):
+            return np.tile(np.arange(steps + 1) / 40.0, (len(points_world), 1))
+
+    predictor = load_predictor(checkpoint)
+    predictor.model.topple_classifier = Rising()
+    box = str(meshes / "box.obj")
+    short, long = predictor.predict_many([box, box], [[0.5, 0.0, 0.0]] * 2, [[0.0, 0.0, 1.0]] * 2, seconds=[1.0, 2.0])
+    assert len(short["topple_probability"]) == 16 and len(long["topple_probability"]) == 31
+    assert not short["toppled"] and long["toppled"]
+    assert not predictor.predict(box, [0.5, 0.0, 0.0], [0.0, 0.0, 1.0], seconds=1.0)["toppled"]

@@ -86,3 +86,10 @@ def test_a_thinned_hull_surface_cloud_keeps_its_hull_points_first_then_its_own_s
     assert thin[0, 2] == cloud[:, 2].min()
     np.testing.assert_allclose(np.ptp(thin, axis=0), np.ptp(cloud, axis=0), rtol=0.02)
     np.testing.assert_array_equal(thin_hull_surface(cloud, 256), cloud)  # nothing to thin
+    # a turned box: float32 samples on its slanted faces are not taken for corners, so all eight stay
+    turned = trimesh.creation.box((0.1, 0.2, 0.3))
+    turned.apply_transform(trimesh.transformations.random_rotation_matrix(np.random.default_rng(3).random(3)))
+    cloud = hull_surface_points(turned, 64)
+    thin = thin_hull_surface(cloud, 16)
+    assert ConvexHull(thin).volume == pytest.approx(turned.volume, rel=1e-6)
+    np.testing.assert_array_equal(thin[8:], cloud[8:16])

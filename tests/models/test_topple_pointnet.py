@@ -190,6 +190,8 @@ def test_fitted_on_thinned_clouds_it_reads_them_thinned_in_fitting_testing_and_p
     store = load_store(hull_store)
     classifier, report = fit_pointnet_topple([store], seeds=(0,), steps=300, batch=32, width=16, num_points=24)
     assert (classifier.num_points, classifier.thinned_from) == (24, 64)
+    # the network was chosen on thinned clouds: its own validation accuracy is the classifier's, which thins
+    assert report["val_accuracy"] == pytest.approx(report["network_val_accuracy"][0], abs=1.5 / report["val_sequences"])
     assert report["val_accuracy"] >= report["val_majority"]
     clouds = classifier.body_clouds(store.points[:5])
     assert clouds.shape == (5, 24, 3) and np.array_equal(clouds[3], thin_hull_surface(store.points[3], 24))
@@ -219,7 +221,8 @@ def test_fitted_on_thinned_clouds_it_reads_them_thinned_in_fitting_testing_and_p
                                           np.array([0.0, 0.0, 0.0, 1.0])))
     expected = classifier.probability(cloud, np.array([[1.5, 0.0, 0.0]]), np.array([[0.0, 6.0, 0.0]]), spin)
     assert result["topple_probability"][-1] == pytest.approx(expected[0] * classifier.timing[-1], rel=1e-5)
-    # with a simulated start, PyBullet runs on the hull of the model's own cloud, not of the thinned one
+    # with a simulated start, PyBullet runs on the hull of the cloud the classifier is given (hull_surface, of the
+    # stores' size), neither the thinned one nor the model's surface cloud
     import physdyn.eval.rollout as rollout_module
 
     write_with_classifier(BUNDLED_CHECKPOINT, classifier, tmp_path / "hybrid.ckpt")
@@ -227,7 +230,7 @@ def test_fitted_on_thinned_clouds_it_reads_them_thinned_in_fitting_testing_and_p
     simulate, seen = rollout_module.simulated_start, []
     monkeypatch.setattr(rollout_module, "simulated_start", lambda model, points, *a: seen.append(points.shape) or simulate(model, points, *a))
     hybrid.predict(box, [1.0, 0.0, 0.0], [0.0, 0.0, 1.0], seconds=1.0)
-    assert seen == [(1, hybrid.num_points, 3)]
+    assert seen == [(1, 64, 3)] and hybrid.num_points == 256
     # asked to thin to as many points as the stores hold: one line, nothing written
     from physdyn.cli import main
 
