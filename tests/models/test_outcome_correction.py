@@ -206,6 +206,8 @@ def test_the_shipped_fast_model_simulates_nothing_and_a_file_of_its_name_comes_f
     model = predictor.model
     assert model.outcome_correction is not None and type(model.topple_classifier).__name__ == "PointNetToppleClassifier"
     assert predictor.points_method == "hull_surface" and model.config.model.sim_seconds == 0
+    # its classifier reads the model's 256-point cloud thinned to 64 (fit-topple --pointnet --num-points 64)
+    assert (model.topple_classifier.num_points, model.topple_classifier.thinned_from) == (64, 256)
     box = trimesh.creation.box((0.1, 0.06, 0.04))
     predictor.predict(box.copy(), [0.5, 0.0, 0.0], [0.0, 0.0, 0.0], seconds=0.2)  # imports done, mesh prepared
     refuse_pybullet(monkeypatch)
