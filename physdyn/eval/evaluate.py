@@ -20,6 +20,7 @@ from physdyn.errors import PhysdynError
 from physdyn.eval import metrics as M
 from physdyn.eval.baselines import Baseline, predictor_name, resolve_predictor
 from physdyn.eval.rollout import DELTA_KEYS, RolloutResult, rollout, sim_steps, teacher_forced
+from physdyn.models.topple_classifier import given_points
 
 GROUPS = ("non_toppling", "toppling", "all")
 
@@ -117,7 +118,7 @@ def predict_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, truth: 
     rng = np.random.default_rng(seed)
     classifier = getattr(predictor, "topple_classifier", None)
     wants = getattr(classifier, "points_method", None)  # a PointNet reads its kind of cloud, given whole (thinned by it)
-    held = getattr(classifier, "thinned_from", 0) or getattr(classifier, "num_points", None)  # a thinning one reads its clouds thinned
+    held = None if classifier is None else given_points(classifier)
     if wants is not None and (wants != store.points_method or store.points.shape[1] != held):
         raise PhysdynError(f"the checkpoint's topple classifier reads {wants} clouds of {held} points "
                            f"and {store.url} holds {store.points_method} ones of {store.points.shape[1]}; test it on a "
@@ -142,8 +143,7 @@ def predict_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, truth: 
         simulates = classifier is not None or sim_steps(predictor) > 0
         topple_points = None
         if simulates:  # the classifier's cloud size (else the whole cloud), drawn from a stream of its own: the model's draws stay as they were
-            topple_points = _model_points(store, sims[sl], (getattr(classifier, "thinned_from", 0) or classifier.num_points)
-                                          if classifier is not None else None,
+            topple_points = _model_points(store, sims[sl], None if classifier is None else given_points(classifier),
                                           np.random.default_rng([seed, sl.start]))
         parts.append(rollout(predictor, points, q0, p0, v0, w0, steps, warm, topple_points_body=topple_points,
                              spin_inertia=store_spin_inertia(store, sims[sl], q0),

@@ -242,9 +242,10 @@ def rollout(
         probability = np.concatenate([np.zeros((B, 1)), np.stack(topple, axis=1) if topple else np.zeros((B, 0))], axis=1)
     classifier = getattr(model, "topple_classifier", None)
     if classifier is not None:
-        cloud = points if topple_points_body is None else _oriented(_numpy(topple_points_body), q0)
         if getattr(classifier, "thinned_from", 0):  # a PointNet fitted on thinned clouds thins what it is given
             cloud = _oriented(classifier.body_clouds(_numpy(points_body if topple_points_body is None else topple_points_body)), q0)
+        else:
+            cloud = points if topple_points_body is None else _oriented(_numpy(topple_points_body), q0)
         probability = classifier.predict(cloud, _numpy(lin_vel0).reshape(B, 3), _numpy(ang_vel0).reshape(B, 3), steps,
                                          None if body_inertia is None else _numpy(body_inertia).reshape(B, 3, 3))
     if simulated is not None and probability is not None:

@@ -238,6 +238,13 @@ def topple_timing(stores: list[Any]) -> np.ndarray:
     return timing
 
 
+def given_points(classifier: Any) -> int | None:
+    """The size of the body-frame cloud a topple classifier is given: its own (None: whatever the caller
+    has), or for a PointNet fitted on thinned clouds (``fit-topple --pointnet --num-points``) the size it
+    thins from (``body_clouds``)."""
+    return getattr(classifier, "thinned_from", 0) or classifier.num_points
+
+
 def topple_classifier_from_dict(d: dict[str, Any]) -> Any:
     """The classifier a checkpoint holds: ``ToppleClassifier``, or ``PointNetToppleClassifier`` (kind "pointnet",
     `fit-topple --pointnet`)."""

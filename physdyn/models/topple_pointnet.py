@@ -302,7 +302,8 @@ def fit_pointnet_topple(stores: list[Any], seeds: tuple[int, ...] = (0,), steps:
                                           runs[0]["scalars_std"], topple_timing(stores), float(stores[0].rate_hz), width,
                                           int(data.clouds.shape[1]), point_widths=tuple(point_widths),
                                           thinned_from=thinned_from)
-    first = stores_first_frames(stores, split=1, clouds=classifier.body_clouds)  # the validation pushes, in ``val``'s order
+    # the validation pushes, in ``val``'s order, with the clouds thinned above (each store's part of them)
+    first = stores_first_frames(stores, split=1, clouds=np.split(data.clouds, np.cumsum([s.num_shapes for s in stores])[:-1]))
     p = classifier.probability(first["points"], first["v0"], first["w0"], first["spin"])
     report = {"val_accuracy": float(np.mean((p > 0.5) == (data.label[val] > 0.5))),
               "network_val_accuracy": [r["val_accuracy"] for r in runs], "steps": [r["steps"] for r in runs],
@@ -312,18 +313,19 @@ def fit_pointnet_topple(stores: list[Any], seeds: tuple[int, ...] = (0,), steps:
 
 
 def stores_first_frames(stores: list[Any], split: int | None = None,
-                        clouds: Callable[[np.ndarray], np.ndarray] = np.asarray) -> dict[str, np.ndarray]:
+                        clouds: list[np.ndarray] | None = None) -> dict[str, np.ndarray]:
     """The pushes' clouds turned to their step-0 orientation (P, N, 3), step-0 velocities, I_zz / m: every
-    push of the stores in order, or those of one ``split``. ``clouds``: what a classifier reads of each
-    store's clouds (S, N, 3) (``PointNetToppleClassifier.body_clouds``)."""
+    push of the stores in order, or those of one ``split``. ``clouds``: per store, the body-frame clouds
+    (S, N', 3) a classifier reads in place of its own (thinned ones: ``body_clouds``)."""
     from physdyn.data.windows import store_spin_inertia, world_oriented_points
 
     out: dict[str, list[np.ndarray]] = {"points": [], "v0": [], "w0": [], "spin": []}
-    for store in stores:
+    for i, store in enumerate(stores):
         sims = np.arange(store.num_sims) if split is None else np.flatnonzero(store.split == split)
         first = store.start[sims]
         q0 = store.orientation_xyzw[first]
-        out["points"].append(world_oriented_points(clouds(store.points)[store.shape_id[sims]], q0))
+        body = store.points if clouds is None else clouds[i]
+        out["points"].append(world_oriented_points(body[store.shape_id[sims]], q0))
         out["v0"].append(store.linear_velocity[first])
         out["w0"].append(store.angular_velocity[first])
         out["spin"].append(store_spin_inertia(store, sims, q0))

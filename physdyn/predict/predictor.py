@@ -33,6 +33,7 @@ from physdyn.geometry.mass import vertical_inertia, world_inertia_per_mass
 from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_rotvec
 from physdyn.models.checkpoint_file import SHIPPED
 from physdyn.models.dynamics_module import DynamicsModel
+from physdyn.models.topple_classifier import given_points
 from physdyn.models.training import load_experiment_config
 from physdyn.predict.body import PreparedBody, preparation_key, prepare_body
 from physdyn.predict.simulator import SIMULATOR_NAME, simulate_from_state
@@ -249,10 +250,8 @@ class Predictor:
         p0, spin_inertia, body_inertia = _posed(bodies, q0)
         points = np.stack([body.points_body(self.num_points, self.points_method) for body in bodies])
         classifier = getattr(self.model, "topple_classifier", None)
-        dense = None if classifier is None else classifier.num_points  # the cloud its simulations read
+        dense = None if classifier is None else given_points(classifier)  # the cloud its simulations read
         method = getattr(classifier, "points_method", "surface")  # a PointNet classifier reads hull_surface
-        # a PointNet fitted on thinned clouds (fit-topple --num-points) is given the clouds it thins
-        dense = getattr(classifier, "thinned_from", 0) or dense
         topple_points = None if classifier is None and not sim_steps(self.model) else np.stack(
             [body.points_body(dense or DEFAULT_NUM_POINTS, method) for body in bodies])
         results: list[dict[str, Any] | None] = [None] * R

@@ -206,7 +206,7 @@ def test_fitted_on_thinned_clouds_it_reads_them_thinned_in_fitting_testing_and_p
     model.topple_classifier = classifier
     sims = np.arange(12)
     rolled = predict_rollouts(model, store, sims, gather_truth(store, sims, 10))
-    first = stores_first_frames([store], clouds=classifier.body_clouds)
+    first = stores_first_frames([store], clouds=[classifier.body_clouds(store.points)])
     expected = classifier.probability(first["points"][:12], first["v0"][:12], first["w0"][:12], first["spin"][:12])
     np.testing.assert_allclose(rolled.topple_probability[:, -1], expected * classifier.per_step(np.ones(1), 10)[0, -1],
                                rtol=1e-5)
