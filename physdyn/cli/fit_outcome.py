@@ -37,6 +37,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seeds", type=int, nargs="+", default=[0], help="one network per seed (averaged)")
     p.add_argument("--steps", type=int, default=6000, help="training steps per network (default: ~30 s each on one core)")
     p.add_argument("--batch", type=int, default=1024, help="pushes per training step")
+    p.add_argument("--pointnet", action="store_true",
+                   help="networks that also read each push's step-0 cloud (a PointNet; the stores' hull_surface clouds): "
+                        "more accurate on irregular meshes, minutes on a GPU, an hour or more on the CPU")
+    p.add_argument("--num-points", type=int, default=None,
+                   help="with --pointnet: read each cloud thinned to this many points, hull vertices first (the "
+                        "per-push cost scales with it); default: the stores' clouds whole")
+    p.add_argument("--device", default="cpu", help="where --pointnet networks train: cpu or cuda")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out")
     p.set_defaults(func=run, parser=p)
 
@@ -53,6 +60,16 @@ def run(args: argparse.Namespace) -> int:
     if min(args.seeds) < 0 or args.steps < MIN_STEPS or args.batch < 1:
         raise PhysdynError(f"--seeds must be >= 0, --steps at least {MIN_STEPS} (the networks are checked 20 times) "
                            f"and --batch at least 1; got {args.seeds}, {args.steps}, {args.batch}")
+    if args.num_points is not None and not args.pointnet:
+        raise PhysdynError("--num-points is for --pointnet networks, which read the cloud; add --pointnet or drop it")
+    if args.num_points is not None and args.num_points < 4:
+        raise PhysdynError(f"--num-points must be at least 4 (a cloud with volume), got {args.num_points}")
+    if args.device != "cpu":
+        import torch
+
+        if not args.device.startswith("cuda") or not torch.cuda.is_available():
+            raise PhysdynError(f"--device {args.device}: no such device here (torch sees "
+                               f"{'a CUDA GPU' if torch.cuda.is_available() else 'no CUDA GPU'}); use --device cpu")
     if args.checkpoint == PRIOR and not Path(PRIOR).is_file():  # a file of that name comes first, as for 'fast'
         if not args.data:
             raise PhysdynError(f"--checkpoint {PRIOR} has no store of its own; pass --data STORE")
@@ -73,6 +90,12 @@ def run(args: argparse.Namespace) -> int:
                                f"model reads {method} ones of {model.data_info.get('num_points')}: fit on stores of its kind")
         if not (store.split == 0).any() or not (store.split == 1).any():
             raise PhysdynError(f"--data {name} has no training or no validation split; fit-outcome needs both")
+        if args.pointnet and args.num_points is not None and store.points_method != "hull_surface":
+            raise PhysdynError(f"--data {name} holds {store.points_method} clouds; --num-points thins hull_surface ones "
+                               "(hull vertices first): drop --num-points, or fit on hull_surface stores")
+        if args.pointnet and args.num_points is not None and args.num_points >= store.points.shape[1]:
+            raise PhysdynError(f"--num-points {args.num_points} is not below --data {name}'s {store.points.shape[1]} "
+                               "points; drop --num-points to read the clouds whole")
     print(f"rolling the model out on {sum(int((s.topple_step < 0).sum()) for s in stores)} non-toppling pushes of "
           f"{len(stores)} store(s), then training {len(args.seeds)} network(s) of {args.steps} steps")
     seen: dict[str, int] = {}
@@ -86,7 +109,8 @@ def run(args: argparse.Namespace) -> int:
         if seen[kind] % 5 == 0 or head.split("/")[0].endswith(" " + total):
             print(f"  {message}", flush=True)
 
-    correction, report = fit_outcome_correction(model, stores, tuple(args.seeds), args.steps, args.batch, progress=progress)
+    correction, report = fit_outcome_correction(model, stores, tuple(args.seeds), args.steps, args.batch, progress=progress,
+                                                pointnet=args.pointnet, num_points=args.num_points, device=args.device)
     if raw is None:
         raw = {"state_dict": model.state_dict(), "hyper_parameters": dict(model.hparams)}
     raw["outcome_correction"] = correction.to_dict()

@@ -1,5 +1,6 @@
 """Fitting ``physdyn fit-outcome``'s correction: the model rolled out on a store's pushes (eval's roll-out),
-then ``physdyn.models.outcome_correction.train_outcome_network`` per seed."""
+then ``physdyn.models.outcome_correction.train_outcome_network`` (or, ``--pointnet``, ``train_outcome_pointnet``)
+per seed."""
 
 from __future__ import annotations
 
@@ -10,20 +11,22 @@ import numpy as np
 from physdyn.data.windows import store_spin_inertia, store_world_inertia
 from physdyn.errors import PhysdynError
 from physdyn.eval.rollout import rollout
-from physdyn.geometry.rotations import wrap_angle
+from physdyn.geometry.rotations import quat_to_matrix, wrap_angle
 from physdyn.models.outcome_correction import (EXTRA_STEPS, REST_SPEED, REST_SPIN, OutcomeCorrection, outcome_inputs,
-                                               resting_state, train_outcome_network)
+                                               resting_state, train_outcome_network, train_outcome_pointnet)
+from physdyn.models.topple_pointnet import POINT_WIDTHS
 
 
 def store_outcomes(model: Any, stores: list[Any], chunk: int = 2048,
                    progress: Callable[[int, int], None] | None = None) -> dict[str, np.ndarray]:
     """Every non-toppling push of ``stores`` rolled out by ``model`` (without any correction it holds) to
     ``EXTRA_STEPS`` past its truth's end: raw inputs (P, INPUTS), targets (P, 3) truth minus roll-out at rest,
-    split (P,), shape (P,) (numbered across stores), rests (P,) whether the roll-out came to rest."""
+    split (P,), shape (P,) (numbered across stores), rests (P,) whether the roll-out came to rest, frame (P, 3, 3)
+    body -> the push's travel frame at step 0; and clouds (S, N, 3), the stores' body-frame clouds."""
     # Neither the correction being replaced nor a topple classifier (its probabilities move nothing) is rolled out
     saved = getattr(model, "outcome_correction", None), getattr(model, "topple_classifier", None)
     model.outcome_correction = model.topple_classifier = None
-    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("inputs", "targets", "split", "shape", "rests")}
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("inputs", "targets", "split", "shape", "rests", "frame")}
     if not any((s.topple_step < 0).any() for s in stores):
         raise PhysdynError("every push of the --data stores topples; the correction learns where pushes that do not "
                            "topple come to rest: fit on stores that have some")
@@ -54,6 +57,7 @@ def store_outcomes(model: Any, stores: list[Any], chunk: int = 2048,
                 parts["targets"].append(target)
                 parts["split"].append(np.asarray(store.split[part], dtype=np.int64))
                 parts["shape"].append(store.shape_id[part].astype(np.int64) + offset)
+                parts["frame"].append(turn @ quat_to_matrix(q0))
                 parts["rests"].append((np.linalg.norm(v, axis=1) < REST_SPEED) & (np.linalg.norm(w, axis=1) < REST_SPIN))
                 done += len(part)
                 if progress is not None:
@@ -61,38 +65,85 @@ def store_outcomes(model: Any, stores: list[Any], chunk: int = 2048,
             offset += store.num_shapes
     finally:
         model.outcome_correction, model.topple_classifier = saved
-    return {k: np.concatenate(v) for k, v in parts.items()}
+    out = {k: np.concatenate(v) for k, v in parts.items()}
+    out["clouds"] = np.concatenate([np.asarray(s.points, dtype=np.float32) for s in stores])
+    return out
+
+
+def outcome_training_data(model: Any, stores: list[Any], num_points: int | None = None,
+                          progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """``store_outcomes`` with the training and validation pushes (those whose roll-out rests) picked out,
+    and its clouds thinned to ``num_points`` (``thin_hull_surface``) where that is below their size
+    (``thinned_from``: their size then, else 0)."""
+    say = progress or (lambda _: None)
+    data = store_outcomes(model, stores, progress=lambda done, total: say(f"rolled out {done}/{total} pushes"))
+    usable = data["rests"]
+    data["train"] = np.flatnonzero(usable & (data["split"] == 0))
+    data["val"] = np.flatnonzero(usable & (data["split"] == 1))
+    if not len(data["train"]) or not len(data["val"]):
+        raise PhysdynError(f"{len(data['train'])} training and {len(data['val'])} validation pushes of the --data "
+                           "stores come to rest without toppling in the model's roll-out; fit-outcome needs some of "
+                           "both (more or longer pushes, or stores with both splits)")
+    stored = int(data["clouds"].shape[1])
+    data["thinned_from"] = stored if num_points is not None and num_points < stored else 0
+    if data["thinned_from"]:
+        from physdyn.geometry.sampling import thin_hull_surface
+
+        data["clouds"] = np.stack([thin_hull_surface(cloud, int(num_points)) for cloud in data["clouds"]])
+    return data
 
 
 def fit_outcome_correction(model: Any, stores: list[Any], seeds: tuple[int, ...] = (0,), steps: int = 6000,
                            batch: int = 1024, width: int = 256, progress: Callable[[str], None] | None = None,
-                           ) -> tuple[OutcomeCorrection, dict[str, Any]]:
+                           pointnet: bool = False, num_points: int | None = None, device: str = "cpu",
+                           point_widths: tuple[int, ...] = POINT_WIDTHS) -> tuple[OutcomeCorrection, dict[str, Any]]:
     """One network per seed on the stores' non-toppling training pushes whose roll-out by ``model`` comes to
     rest, each chosen on the validation split's; the ensemble and a report: the median error of the resting
-    position and turn on each split, the model's own and corrected."""
+    position and turn on each split, the model's own and corrected. ``pointnet``: networks that also read
+    each push's step-0 cloud (thinned to ``num_points``, where given), trained on ``device``."""
     say = progress or (lambda _: None)
-    data = store_outcomes(model, stores, progress=lambda done, total: say(f"rolled out {done}/{total} pushes"))
+    data = outcome_training_data(model, stores, num_points if pointnet else None, say)
+
+    def report_to(s: int) -> Callable[[int, float], None]:
+        return lambda step, error: say(f"network {s}: step {step}/{steps}, validation error {error:.3f}")
+
+    if pointnet:
+        runs = [train_outcome_pointnet(data["inputs"], data["targets"], data["clouds"], data["shape"], data["frame"],
+                                       data["train"], data["val"], steps, batch, width, seed, device, point_widths,
+                                       progress=report_to(seed)) for seed in seeds]
+    else:
+        runs = [train_outcome_network(data["inputs"], data["targets"], data["train"], data["val"], steps, batch, width,
+                                      seed, report_to(seed)) for seed in seeds]
+    correction = correction_from_runs(runs, data, width, pointnet, point_widths)
+    return correction, outcome_report(correction, data)
+
+
+def correction_from_runs(runs: list[dict[str, Any]], data: dict[str, Any], width: int, pointnet: bool,
+                         point_widths: tuple[int, ...] = POINT_WIDTHS) -> OutcomeCorrection:
+    """The ensemble of ``runs`` (one standardisation: every run's is the training split's, the same numbers)."""
+    first = runs[0]
+    return OutcomeCorrection([r["state_dict"] for r in runs], first["inputs_mean"], first["inputs_std"],
+                             first["targets_mean"], first["targets_std"], width,
+                             int(data["clouds"].shape[1]) if pointnet else 0, int(data["thinned_from"]) if pointnet else 0,
+                             tuple(point_widths))
+
+
+def outcome_report(correction: OutcomeCorrection, data: dict[str, Any]) -> dict[str, Any]:
+    """The median error of the resting position and turn on each split, the model's own and corrected."""
     usable = data["rests"]
-    train, val = np.flatnonzero(usable & (data["split"] == 0)), np.flatnonzero(usable & (data["split"] == 1))
-    if not len(train) or not len(val):
-        raise PhysdynError(f"{len(train)} training and {len(val)} validation pushes of the --data stores come to rest "
-                           "without toppling in the model's roll-out; fit-outcome needs some of both (more or longer "
-                           "pushes, or stores with both splits)")
-    runs = [train_outcome_network(data["inputs"], data["targets"], train, val, steps, batch, width, seed,
-                                  lambda step, error, s=seed: say(f"network {s}: step {step}/{steps}, validation error {error:.3f}"))
-            for seed in seeds]
-    first = runs[0]  # one standardisation: every run's is the training split's, the same numbers
-    correction = OutcomeCorrection([r["state_dict"] for r in runs], first["inputs_mean"], first["inputs_std"],
-                                   first["targets_mean"], first["targets_std"], width)
-    report: dict[str, Any] = {"train_pushes": int(len(train)), "val_pushes": int(len(val)),
+    report: dict[str, Any] = {"train_pushes": int(len(data["train"])), "val_pushes": int(len(data["val"])),
                               "not_at_rest": int((~usable).sum()), "splits": {}}
     for name, split in (("train", 0), ("validation", 1), ("test", 2)):
         idx = np.flatnonzero(usable & (data["split"] == split))
         if not len(idx):
             continue
         y = data["targets"][idx]
-        rest = y - correction.correction(data["inputs"][idx])
+        fix = np.concatenate([correction.correction(data["inputs"][part], None if not correction.num_points else
+                                                    np.einsum("bij,bnj->bni", data["frame"][part],
+                                                              data["clouds"][data["shape"][part]]))
+                              for part in np.array_split(idx, max(1, -(-len(idx) // 8192)))])
+        rest = y - fix
         report["splits"][name] = {"pushes": int(len(idx)),
                                   "position_cm": [100 * float(np.median(np.hypot(a[:, 0], a[:, 1]))) for a in (y, rest)],
                                   "yaw_deg": [float(np.degrees(np.median(np.abs(wrap_angle(a[:, 2]))))) for a in (y, rest)]}
-    return correction, report
+    return report

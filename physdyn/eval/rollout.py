@@ -241,9 +241,12 @@ def rollout(
     if topple or (steps == 0 and getattr(model, "predicts_topple", False)):
         probability = np.concatenate([np.zeros((B, 1)), np.stack(topple, axis=1) if topple else np.zeros((B, 0))], axis=1)
     classifier = getattr(model, "topple_classifier", None)
+    thinned = None  # (how, cloud): the classifier's thinned cloud, which a PointNet correction thinned alike reads too
     if classifier is not None:
         if getattr(classifier, "thinned_from", 0):  # a PointNet fitted on thinned clouds thins what it is given
             cloud = _oriented(classifier.body_clouds(_numpy(points_body if topple_points_body is None else topple_points_body)), q0)
+            if topple_points_body is None:
+                thinned = ((classifier.num_points, classifier.thinned_from), cloud)
         else:
             cloud = points if topple_points_body is None else _oriented(_numpy(topple_points_body), q0)
         probability = classifier.predict(cloud, _numpy(lin_vel0).reshape(B, 3), _numpy(ang_vel0).reshape(B, 3), steps,
@@ -261,12 +264,18 @@ def rollout(
     # one verdict per push, at its own end: the correction moves only pushes that did not topple, and
     # ``Predictor.predict_many`` reports it (a correction turns about the vertical: the tilt stays)
     toppled = toppled_by_own_end(probability, q0, states["orientation_xyzw"], lengths)
-    if getattr(model, "outcome_correction", None) is not None:  # fit-outcome: where the push ends, learned
+    correction = getattr(model, "outcome_correction", None)
+    if correction is not None:  # fit-outcome: where the push ends, learned
         from physdyn.models.outcome_correction import correct_rollout  # torch: only for models that have one
 
+        clouds = None
+        if getattr(correction, "num_points", 0):  # a PointNet correction (fit-outcome --pointnet) reads the cloud
+            how = (correction.num_points, correction.thinned_from)
+            clouds = thinned[1] if thinned is not None and thinned[0] == how else _oriented(
+                correction.body_clouds(_numpy(points_body)), q0)
         states = {**states, **{k: np.array(v) for k, v in deltas.items()}}
         correct_rollout(model, states, _numpy(lin_vel0).reshape(B, 3), _numpy(ang_vel0).reshape(B, 3), given_spin_inertia,
-                        points, toppled, lengths)
+                        points, toppled, lengths, clouds)
         deltas = {k: states.pop(k) for k in DELTA_KEYS}
     return RolloutResult(**states, topple_probability=probability, **deltas, fed_linear_velocity=fed_v,
                          fed_angular_velocity=fed_w, toppled=toppled)

@@ -27,7 +27,8 @@ import numpy as np
 import torch
 
 from physdyn.geometry.rotations import quat_conjugate, quat_multiply, rotvec_to_quat, world_delta_rotvec, wrap_angle
-from physdyn.models.topple_pointnet import MIN_STEPS, cloud_spin_inertia, travel_scalars, travel_turn
+from physdyn.models.topple_pointnet import (MIN_STEPS, POINT_WIDTHS, ToppleNet, _in_passes, cloud_spin_inertia,
+                                           thinned_clouds, travel_scalars, travel_turn)
 
 KIND = "outcome_mlp"
 INPUTS = 13  # step-0 velocity (3) and spin (3) in the travel frame, the resting state (6), I_zz / m
@@ -82,7 +83,10 @@ def outcome_inputs(v0: np.ndarray, w0: np.ndarray, spin_inertia: np.ndarray, p0:
 
 @dataclass
 class OutcomeCorrection:
-    """An ensemble of ``OutcomeNet`` state dicts with the inputs' and targets' standardisation."""
+    """An ensemble of ``OutcomeNet`` state dicts with the inputs' and targets' standardisation; with
+    ``num_points`` > 0, of PointNets (``ToppleNet`` with three outputs) that also read each push's step-0
+    cloud of that many points in the frame of its travel (``fit-outcome --pointnet``), thinned from
+    ``thinned_from``-point ``hull_surface`` clouds where that is set (``body_clouds``)."""
 
     networks: list[dict[str, torch.Tensor]]
     inputs_mean: np.ndarray
@@ -90,9 +94,21 @@ class OutcomeCorrection:
     targets_mean: np.ndarray
     targets_std: np.ndarray
     width: int = 256
+    num_points: int = 0
+    thinned_from: int = 0
+    point_widths: tuple[int, ...] = POINT_WIDTHS
     _layers: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list, repr=False, compare=False)
+    _modules: list[ToppleNet] = field(default_factory=list, repr=False, compare=False)
+    _thinned: dict[bytes, np.ndarray] = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
+        if self.num_points:
+            self._modules = []
+            for state in self.networks:
+                net = ToppleNet(self.width, INPUTS, tuple(self.point_widths), outputs=len(TARGETS))
+                net.load_state_dict(state)
+                self._modules.append(net.eval())
+            return
         # The networks' layers stacked, on numpy: one prediction is a few small products, where torch's
         # per-call overhead would cost a millisecond (issue #26 counts every one of a new mesh's)
         for state in self.networks:
@@ -101,10 +117,24 @@ class OutcomeCorrection:
         self._layers = [(np.stack([s[f"{n}.weight"].double().numpy().T for s in self.networks]),
                          np.stack([s[f"{n}.bias"].double().numpy() for s in self.networks])[:, None, :]) for n in names]
 
-    def correction(self, inputs: np.ndarray) -> np.ndarray:
+    def body_clouds(self, points_body: np.ndarray) -> np.ndarray:
+        """The body-frame clouds (B, num_points, 3) it reads, from those it is given (B, N, 3): thinned as at
+        fitting where it was fitted on thinned ones, else as they are."""
+        return thinned_clouds(points_body, self.num_points if self.thinned_from else 0, self._thinned)
+
+    def correction(self, inputs: np.ndarray, clouds: np.ndarray | None = None) -> np.ndarray:
         """Raw inputs (B, 13) -> (B, 3): the displacement along and across the travel (m) and the turn
-        about the vertical (rad) to add to the resting pose (the mean of the networks')."""
-        h = ((np.asarray(inputs, dtype=np.float64) - self.inputs_mean) / self.inputs_std)[None]
+        about the vertical (rad) to add to the resting pose (the mean of the networks'). ``clouds`` (B,
+        num_points, 3): each push's step-0 cloud in its travel frame, for PointNets (``num_points`` > 0)."""
+        x = (np.asarray(inputs, dtype=np.float64) - self.inputs_mean) / self.inputs_std
+        if self.num_points:
+            if clouds is None:
+                raise ValueError("this outcome correction reads each push's cloud: pass clouds")
+            c, xt = torch.tensor(clouds, dtype=torch.float32), torch.tensor(x, dtype=torch.float32)
+            with torch.no_grad():
+                h = np.mean([_in_passes(net, c, xt).numpy() for net in self._modules], axis=0).astype(np.float64)
+            return h * self.targets_std + self.targets_mean
+        h = x[None]
         for i, (weight, bias) in enumerate(self._layers):
             h = h @ weight + bias
             if i + 1 < len(self._layers):
@@ -112,12 +142,16 @@ class OutcomeCorrection:
         return h.mean(axis=0) * self.targets_std + self.targets_mean
 
     def apply(self, states: dict[str, np.ndarray], v0: np.ndarray, w0: np.ndarray, spin_inertia: np.ndarray,
-              dt: float, toppled: np.ndarray | None = None, lengths: np.ndarray | None = None) -> np.ndarray:
+              dt: float, toppled: np.ndarray | None = None, lengths: np.ndarray | None = None,
+              clouds_world: np.ndarray | None = None) -> np.ndarray:
         """Correct ``states`` (``com_position`` (B, T, 3), ``orientation_xyzw`` (B, T, 4), ``linear_velocity``,
         ``angular_velocity``, one step every ``dt`` s) in place where a push rests at its own last step and has
         not ``toppled`` (B,). ``lengths`` (B,): each push's own number of steps (default T), for roll-outs
         padded to the longest of a batch: a push is judged at its own end, as it would be alone, and past it
-        takes the whole correction. The step-0 velocities stay as given. Returns which rows it corrected (B,)."""
+        takes the whole correction. The step-0 velocities stay as given. ``clouds_world`` (B, num_points, 3):
+        the clouds it reads (``body_clouds``) turned to step 0, for PointNets. Returns which rows it corrected (B,)."""
+        if self.num_points and clouds_world is None:
+            raise ValueError("this outcome correction reads each push's cloud: pass clouds_world")
         p, q = states["com_position"], states["orientation_xyzw"]
         v, w = states["linear_velocity"], states["angular_velocity"]
         B, T = p.shape[:2]
@@ -136,7 +170,8 @@ class OutcomeCorrection:
             corrected[idx] = True
             inputs, turn = outcome_inputs(v0[idx], w0[idx], spin_inertia[idx], p[idx, 0], q[idx, 0], p[idx, L - 1],
                                           q[idx, L - 1], v[idx, L - 1], w[idx, L - 1])
-            fix = self.correction(inputs)
+            clouds = None if not self.num_points else np.einsum("bij,bnj->bni", turn, np.asarray(clouds_world)[idx])
+            fix = self.correction(inputs, clouds)
             shift = fix[:, 0:1] * turn[:, 0, :2] + fix[:, 1:2] * turn[:, 1, :2]  # (b, 2) world, horizontal
             moved = np.linalg.norm(np.diff(p[idx, :L, :2], axis=1), axis=-1)
             turns = np.abs(wrap_angle(np.diff(yaw_of(quat_multiply(q[idx, :L], quat_conjugate(q[idx, :1]))), axis=1)))
@@ -157,14 +192,17 @@ class OutcomeCorrection:
         return {"kind": KIND, "networks": [{k: t.detach().cpu().clone() for k, t in s.items()} for s in self.networks],
                 "inputs_mean": self.inputs_mean.tolist(), "inputs_std": self.inputs_std.tolist(),
                 "targets_mean": self.targets_mean.tolist(), "targets_std": self.targets_std.tolist(),
-                "width": int(self.width)}
+                "width": int(self.width), "num_points": int(self.num_points), "thinned_from": int(self.thinned_from),
+                "point_widths": [int(w) for w in self.point_widths]}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "OutcomeCorrection":
         if d.get("kind") != KIND:
             raise ValueError(f"unknown outcome correction kind {d.get('kind')!r}")
         return cls([dict(s) for s in d["networks"]], np.asarray(d["inputs_mean"]), np.asarray(d["inputs_std"]),
-                   np.asarray(d["targets_mean"]), np.asarray(d["targets_std"]), int(d["width"]))
+                   np.asarray(d["targets_mean"]), np.asarray(d["targets_std"]), int(d["width"]),
+                   int(d.get("num_points", 0)), int(d.get("thinned_from", 0)),
+                   tuple(int(w) for w in d.get("point_widths", POINT_WIDTHS)))
 
 
 def _progress(step_sizes: np.ndarray, fallback: np.ndarray) -> np.ndarray:
@@ -196,16 +234,17 @@ def _rate(fraction: np.ndarray, dt: float) -> np.ndarray:
 
 def correct_rollout(model: Any, states: dict[str, np.ndarray], v0: np.ndarray, w0: np.ndarray,
                     spin_inertia: np.ndarray | None, points_world: np.ndarray, toppled: np.ndarray,
-                    lengths: np.ndarray | None = None) -> None:
+                    lengths: np.ndarray | None = None, clouds_world: np.ndarray | None = None) -> None:
     """Apply ``model.outcome_correction`` (if any) to a roll-out's ``states`` in place (``OutcomeCorrection.apply``;
-    ``toppled`` (B,): the roll-out's own verdict), and make its ``delta_*`` (if present) the corrected states'
-    steps."""
+    ``toppled`` (B,): the roll-out's own verdict; ``clouds_world``: what a PointNet correction reads, its
+    ``body_clouds`` turned to step 0), and make its ``delta_*`` (if present) the corrected states' steps."""
     correction = getattr(model, "outcome_correction", None)
     if correction is None:
         return
     spin = cloud_spin_inertia(points_world) if spin_inertia is None else np.asarray(spin_inertia, dtype=np.float64)
     rows = correction.apply(states, np.asarray(v0, dtype=np.float64).reshape(-1, 3),
-                            np.asarray(w0, dtype=np.float64).reshape(-1, 3), spin, float(model.prior_dt), toppled, lengths)
+                            np.asarray(w0, dtype=np.float64).reshape(-1, 3), spin, float(model.prior_dt), toppled, lengths,
+                            clouds_world)
     if rows.any() and "delta_position" in states:
         states["delta_position"][rows] = np.diff(states["com_position"][rows], axis=1)
         states["delta_linear_velocity"][rows] = np.diff(states["linear_velocity"][rows], axis=1)
@@ -256,3 +295,60 @@ def train_outcome_network(inputs: np.ndarray, targets: np.ndarray, train: np.nda
                 progress(step + 1, error)
     return {"state_dict": best_state, "inputs_mean": mu, "inputs_std": sd, "targets_mean": ymu, "targets_std": ysd,
             "val_error": best, "seconds": time.time() - started}
+
+
+def train_outcome_pointnet(inputs: np.ndarray, targets: np.ndarray, clouds: np.ndarray, shape: np.ndarray,
+                           frame: np.ndarray, train: np.ndarray, val: np.ndarray, steps: int = 10000, batch: int = 1024,
+                           width: int = 256, seed: int = 0, device: str = "cpu",
+                           point_widths: tuple[int, ...] = POINT_WIDTHS, minutes: float | None = None,
+                           progress: Callable[[int, float], None] | None = None) -> dict[str, Any]:
+    """``train_outcome_network`` with a PointNet that also reads each push's cloud: ``clouds`` (S, N, 3) body
+    frame, ``shape`` (P,) each push's, ``frame`` (P, 3, 3) body -> its travel frame at step 0. The mirrored
+    half of each batch has its cloud mirrored too. ``minutes``: stop then, keeping the best so far."""
+    if steps < MIN_STEPS:
+        raise ValueError(f"steps must be at least {MIN_STEPS} (the network is checked 20 times), got {steps}")
+    dev = torch.device(device)
+    torch.manual_seed(seed)
+    mu, sd = inputs[train].mean(0), inputs[train].std(0) + 1e-9
+    ymu, ysd = targets[train].mean(0), targets[train].std(0) + 1e-9
+
+    def tensor(a: np.ndarray, dtype: torch.dtype = torch.float32) -> torch.Tensor:
+        return torch.tensor(np.asarray(a), dtype=dtype, device=dev)
+
+    x, xm = tensor((inputs - mu) / sd), tensor((inputs * MIRROR_INPUTS - mu) / sd)
+    y, ym = tensor((targets - ymu) / ysd), tensor((targets * MIRROR_TARGETS - ymu) / ysd)
+    cloud_t, frame_t, shape_t = tensor(clouds), tensor(frame), tensor(shape, torch.int64)
+    flip_y = torch.tensor([1.0, -1.0, 1.0], device=dev)
+
+    def cloud_of(idx: torch.Tensor) -> torch.Tensor:
+        return torch.einsum("bij,bnj->bni", frame_t[idx], cloud_t[shape_t[idx]])
+
+    net = ToppleNet(width, INPUTS, tuple(point_widths), outputs=len(TARGETS)).to(dev)
+    opt = torch.optim.AdamW(net.parameters(), lr=1e-3, weight_decay=1e-4)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=1e-3, total_steps=steps, pct_start=max(0.05, 2.0 / steps))
+    train_t, val_t = tensor(train, torch.int64), tensor(val, torch.int64)
+    best, best_state, started, done = np.inf, None, time.time(), steps
+    for step in range(steps):
+        idx = train_t[torch.randint(len(train_t), (batch,), device=dev)]
+        m = torch.rand(batch, device=dev) < 0.5
+        cloud = torch.where(m[:, None, None], cloud_of(idx) * flip_y, cloud_of(idx))
+        loss = torch.nn.functional.smooth_l1_loss(net(cloud, torch.where(m[:, None], xm[idx], x[idx])),
+                                                  torch.where(m[:, None], ym[idx], y[idx]))
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        sched.step()
+        if (step + 1) % max(1, steps // 20) == 0 or step + 1 == steps:
+            net.eval()
+            with torch.no_grad():
+                error = float(torch.cat([(net(cloud_of(part), x[part]) - y[part]).abs() for part in val_t.split(8192)]).mean())
+            net.train()
+            if error < best:
+                best, best_state = error, {k: t.detach().cpu().clone() for k, t in net.state_dict().items()}
+            if progress is not None:
+                progress(step + 1, error)
+            if minutes is not None and time.time() - started > 60 * minutes:
+                done = step + 1
+                break
+    return {"state_dict": best_state, "inputs_mean": mu, "inputs_std": sd, "targets_mean": ymu, "targets_std": ysd,
+            "val_error": best, "seconds": time.time() - started, "steps": done}

@@ -44,8 +44,10 @@ class ToppleNet(torch.nn.Module):
     """One network: PointNet over (x, y, z, height above the lowest point) in decimetres, joined with the
     standardised scalars; one logit."""
 
-    def __init__(self, width: int = 256, scalars: int = SCALARS, point_widths: tuple[int, ...] = POINT_WIDTHS):
+    def __init__(self, width: int = 256, scalars: int = SCALARS, point_widths: tuple[int, ...] = POINT_WIDTHS,
+                 outputs: int = 1):
         super().__init__()
+        self.outputs = outputs
         if not point_widths or min(point_widths) < 1:
             raise ValueError(f"point_widths: one or more layer widths of at least 1, got {point_widths}")
         layers: list[torch.nn.Module] = []
@@ -53,13 +55,15 @@ class ToppleNet(torch.nn.Module):
             layers += [torch.nn.Linear(a, b), torch.nn.ReLU()]
         self.points = torch.nn.Sequential(*layers, torch.nn.Linear(point_widths[-1], width))
         self.head = torch.nn.Sequential(torch.nn.Linear(width + scalars, width), torch.nn.ReLU(),
-                                        torch.nn.Linear(width, width), torch.nn.ReLU(), torch.nn.Linear(width, 1))
+                                        torch.nn.Linear(width, width), torch.nn.ReLU(), torch.nn.Linear(width, outputs))
 
     def forward(self, cloud: torch.Tensor, scalars: torch.Tensor) -> torch.Tensor:
-        """cloud (B, N, 3) in the travel frame (m), scalars (B, 7) standardised -> (B,) logits."""
+        """cloud (B, N, 3) in the travel frame (m), scalars (B, 7) standardised -> (B,) logits, or (B,
+        outputs) where it has more than one (the outcome correction's, ``physdyn fit-outcome --pointnet``)."""
         height = cloud[..., 2:3] - cloud[..., 2:3].amin(dim=1, keepdim=True)
         feature = self.points(torch.cat([cloud * 10.0, height * 10.0], dim=-1)).amax(dim=1)
-        return self.head(torch.cat([feature, scalars], dim=-1))[:, 0]
+        out = self.head(torch.cat([feature, scalars], dim=-1))
+        return out[:, 0] if self.outputs == 1 else out
 
 
 def _in_passes(net: ToppleNet, cloud: torch.Tensor, scalars: torch.Tensor) -> torch.Tensor:
@@ -70,6 +74,25 @@ def _in_passes(net: ToppleNet, cloud: torch.Tensor, scalars: torch.Tensor) -> to
         return net(cloud, scalars)
     return torch.cat([net(cloud[i : i + PUSHES_PER_PASS], scalars[i : i + PUSHES_PER_PASS])
                       for i in range(0, len(cloud), PUSHES_PER_PASS)])
+
+
+def thinned_clouds(points_body: np.ndarray, count: int, cache: dict[bytes, np.ndarray]) -> np.ndarray:
+    """(B, count, 3) float32: each body-frame cloud of (B, N, 3) thinned by ``thin_hull_surface``, each distinct
+    cloud once (``cache``, the latest THINNED_KEPT); as given where ``count`` is 0 or not below N."""
+    points_body = np.asarray(points_body, dtype=np.float32)
+    if not count or points_body.shape[1] <= count:
+        return points_body
+    from physdyn.geometry.sampling import thin_hull_surface
+
+    out = np.empty((len(points_body), count, 3), dtype=np.float32)
+    for b, cloud in enumerate(points_body):
+        key = cloud.tobytes()
+        if key not in cache:
+            if len(cache) >= THINNED_KEPT:
+                cache.pop(next(iter(cache)))  # the oldest
+            cache[key] = thin_hull_surface(cloud, count)
+        out[b] = cache[key]
+    return out
 
 
 def travel_turn(linear_velocity: np.ndarray) -> np.ndarray:
@@ -140,20 +163,7 @@ class PointNetToppleClassifier:
         --num-points``; given its ``thinned_from``-point clouds), else as they are. Thinned before a push
         turns them (from the body frame's lowest hull vertex, as its training clouds were), each distinct
         cloud once: a batch of one object's pushes repeats one cloud hundreds of times."""
-        points_body = np.asarray(points_body, dtype=np.float32)
-        if not self.thinned_from or points_body.shape[1] <= self.num_points:
-            return points_body
-        from physdyn.geometry.sampling import thin_hull_surface
-
-        out = np.empty((len(points_body), self.num_points, 3), dtype=np.float32)
-        for b, cloud in enumerate(points_body):
-            key = cloud.tobytes()
-            if key not in self._thinned:
-                if len(self._thinned) >= THINNED_KEPT:
-                    self._thinned.pop(next(iter(self._thinned)))  # the oldest
-                self._thinned[key] = thin_hull_surface(cloud, self.num_points)
-            out[b] = self._thinned[key]
-        return out
+        return thinned_clouds(points_body, self.num_points if self.thinned_from else 0, self._thinned)
 
     def per_step(self, probability: np.ndarray, steps: int) -> np.ndarray:
         """(B,) -> (B, steps + 1): the probability of having toppled by step t (0 at step 0)."""

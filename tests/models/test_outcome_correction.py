@@ -38,6 +38,58 @@ def test_it_learns_where_the_prior_ends_wrong(fitted):
     assert len(correction.networks) == 1
 
 
+@pytest.fixture(scope="module")
+def fitted_pointnet(tiny_hull_store):
+    torch.set_num_threads(1)
+    store = load_store(tiny_hull_store)
+    model = contact_prior_predictor(rate_hz=store.rate_hz, num_points=store.points.shape[1]).model
+    return store, *fit_outcome_correction(model, [store], seeds=(0,), steps=400, batch=32, width=32, pointnet=True,
+                                          num_points=16)
+
+
+def test_a_pointnet_correction_reads_the_thinned_cloud_and_learns(fitted_pointnet):
+    from physdyn.geometry.sampling import thin_hull_surface
+
+    store, correction, report = fitted_pointnet
+    assert (correction.num_points, correction.thinned_from) == (16, store.points.shape[1])
+    for split in (report["splits"]["train"], report["splits"]["validation"]):
+        before, after = split["position_cm"]
+        assert after < 0.9 * before, (before, after)
+    # the clouds it reads: each given cloud thinned as at fitting, the hull's vertices first
+    clouds = correction.body_clouds(store.points[:3])
+    np.testing.assert_array_equal(clouds, np.stack([thin_hull_surface(c, 16) for c in store.points[:3]]))
+    # it reads them: one push's inputs with each shape's cloud give different corrections; without a cloud, an error
+    inputs = np.tile(np.linspace(-1.0, 1.0, 13) * correction.inputs_std + correction.inputs_mean, (3, 1))
+    fixes = correction.correction(inputs, clouds)
+    assert np.abs(fixes[0] - fixes[1]).max() > 1e-6 and np.abs(fixes[0] - fixes[2]).max() > 1e-6
+    with pytest.raises(ValueError, match="reads each push's cloud"):
+        correction.correction(inputs)
+    # a checkpoint's copy (tensors, lists and numbers) corrects alike
+    again = OutcomeCorrection.from_dict(correction.to_dict())
+    np.testing.assert_array_equal(again.correction(inputs, clouds), fixes)
+    assert (again.num_points, again.thinned_from) == (16, store.points.shape[1])
+
+
+def test_a_pointnet_correction_moves_predictions_with_no_simulator_and_a_padded_batch_equals_each(fitted_pointnet,
+                                                                                                 monkeypatch):
+    store, correction, _ = fitted_pointnet
+    prior = contact_prior_predictor(rate_hz=store.rate_hz, num_points=store.points.shape[1])
+    corrected = contact_prior_predictor(rate_hz=store.rate_hz, num_points=store.points.shape[1])
+    corrected.model.outcome_correction = correction
+    box = trimesh.creation.box((0.08, 0.05, 0.04))
+    corrected.predict(box.copy(), [0.5, 0.0, 0.0], [0.0, 0.0, 0.0], seconds=0.2)  # imports done, mesh prepared
+    refuse_pybullet(monkeypatch)
+    pushes = [([0.8, 0.2, 0.0], [0.0, 0.0, 4.0], 2.0), ([0.6, -0.3, 0.0], [0.0, 0.0, -2.0], 3.0)]
+    alone = [corrected.predict(box, v, w, seconds=t) for v, w, t in pushes]
+    theirs = prior.predict(box, *pushes[0][:2], seconds=2.0)
+    np.testing.assert_allclose(alone[0]["com_position"][0], theirs["com_position"][0])
+    assert not np.allclose(alone[0]["com_position"][-1], theirs["com_position"][-1], atol=1e-5)
+    batch = corrected.predict_many([box, box], [p[0] for p in pushes], [p[1] for p in pushes], [p[2] for p in pushes])
+    for one, many in zip(alone, batch):
+        for key in ("com_position", "orientation_xyzw", "linear_velocity"):
+            np.testing.assert_allclose(many[key], one[key], atol=1e-5, err_msg=key)
+
+
 def test_the_inputs_mirror_as_the_training_assumes():
     rng = np.random.default_rng(0)
     B = 40
@@ -168,11 +220,20 @@ def test_fit_outcome_writes_a_checkpoint_that_predicts_with_no_simulator(tiny_hu
     args = ["fit-outcome", "--checkpoint", "contact_prior", "--data", tiny_hull_store, "--out", str(out)]
     assert main([*args, "--steps", "40", "--batch", "32"]) == 0
     assert "median error of the resting pose" in capsys.readouterr().out and out.is_file()
+    with_cloud = tmp_path / "outcome_pointnet.ckpt"
+    assert main(["fit-outcome", "--checkpoint", "contact_prior", "--data", tiny_hull_store, "--out", str(with_cloud),
+                 "--pointnet", "--num-points", "16", "--steps", "40", "--batch", "32"]) == 0
+    assert load_predictor(str(with_cloud)).model.outcome_correction.num_points == 16
     # bad input: one line, exit 2, nothing written
     assert main(args) == 2
     err = capsys.readouterr().err
     assert "already exists" in err and len(err.strip().splitlines()) == 1
     for bad, message in ((["--checkpoint", "contact_prior"], "pass --data"),
+                         (["--checkpoint", "contact_prior", "--data", tiny_hull_store, "--num-points", "16"], "add --pointnet"),
+                         (["--checkpoint", "contact_prior", "--data", tiny_hull_store, "--pointnet", "--num-points", "64"],
+                          "not below"),
+                         (["--checkpoint", "contact_prior", "--data", tiny_hull_store, "--pointnet", "--device", "tpu"],
+                          "no such device"),
                          (["--checkpoint", "contact_prior", "--data", tiny_store], "hull_surface"),
                          (["--checkpoint", "contact_prior", "--data", tiny_hull_store, "--steps", "3"], "at least 20")):
         assert main(["fit-outcome", *bad, "--out", str(tmp_path / "bad.ckpt")]) == 2
