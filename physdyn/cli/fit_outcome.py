@@ -43,6 +43,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--num-points", type=int, default=None,
                    help="with --pointnet: read each cloud thinned to this many points, hull vertices first (the "
                         "per-push cost scales with it); default: the stores' clouds whole")
+    p.add_argument("--widths", type=int, nargs="+", default=[64, 128, 256],
+                   help="--pointnet: the per-point layers' widths, the last also the head's (default 64 128 256; the "
+                        "shipped fast's: 32 64 128, a quarter of the per-push cost)")
     p.add_argument("--device", default="cpu", help="where --pointnet networks train: cpu or cuda")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out")
     p.set_defaults(func=run, parser=p)
@@ -62,6 +65,8 @@ def run(args: argparse.Namespace) -> int:
                            f"and --batch at least 1; got {args.seeds}, {args.steps}, {args.batch}")
     if args.num_points is not None and not args.pointnet:
         raise PhysdynError("--num-points is for --pointnet networks, which read the cloud; add --pointnet or drop it")
+    if args.pointnet and (len(args.widths) < 2 or min(args.widths) < 1):
+        raise PhysdynError(f"--widths takes two or more layer widths of at least 1 (e.g. 64 128 256), got {args.widths}")
     if args.num_points is not None and args.num_points < 4:
         raise PhysdynError(f"--num-points must be at least 4 (a cloud with volume), got {args.num_points}")
     if args.device != "cpu":
@@ -110,7 +115,9 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {message}", flush=True)
 
     correction, report = fit_outcome_correction(model, stores, tuple(args.seeds), args.steps, args.batch, progress=progress,
-                                                pointnet=args.pointnet, num_points=args.num_points, device=args.device)
+                                                width=args.widths[-1] if args.pointnet else 256, pointnet=args.pointnet,
+                                                num_points=args.num_points, device=args.device,
+                                                point_widths=tuple(args.widths[:-1]))
     if raw is None:
         raw = {"state_dict": model.state_dict(), "hyper_parameters": dict(model.hparams)}
     raw["outcome_correction"] = correction.to_dict()

@@ -245,7 +245,7 @@ def rollout(
     if classifier is not None:
         if getattr(classifier, "thinned_from", 0):  # a PointNet fitted on thinned clouds thins what it is given
             cloud = _oriented(classifier.body_clouds(_numpy(points_body if topple_points_body is None else topple_points_body)), q0)
-            if topple_points_body is None:
+            if topple_points_body is None or np.array_equal(_numpy(topple_points_body), _numpy(points_body)):  # predict_many gives both
                 thinned = ((classifier.num_points, classifier.thinned_from), cloud)
         else:
             cloud = points if topple_points_body is None else _oriented(_numpy(topple_points_body), q0)

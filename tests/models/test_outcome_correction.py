@@ -222,8 +222,9 @@ def test_fit_outcome_writes_a_checkpoint_that_predicts_with_no_simulator(tiny_hu
     assert "median error of the resting pose" in capsys.readouterr().out and out.is_file()
     with_cloud = tmp_path / "outcome_pointnet.ckpt"
     assert main(["fit-outcome", "--checkpoint", "contact_prior", "--data", tiny_hull_store, "--out", str(with_cloud),
-                 "--pointnet", "--num-points", "16", "--steps", "40", "--batch", "32"]) == 0
-    assert load_predictor(str(with_cloud)).model.outcome_correction.num_points == 16
+                 "--pointnet", "--num-points", "16", "--widths", "8", "16", "32", "--steps", "40", "--batch", "32"]) == 0
+    read = load_predictor(str(with_cloud)).model.outcome_correction
+    assert (read.num_points, read.thinned_from, tuple(read.point_widths), read.width) == (16, 64, (8, 16), 32)
     # bad input: one line, exit 2, nothing written
     assert main(args) == 2
     err = capsys.readouterr().err
@@ -284,7 +285,15 @@ def test_the_shipped_fast_model_simulates_nothing_and_a_file_of_its_name_comes_f
     ends = [prior[k][None] for k in ("com_position", "orientation_xyzw", "linear_velocity", "angular_velocity")]
     x, turn = inputs_of(v0[None], w0[None], np.atleast_1d(x_spin(box)), ends[0][:, 0], ends[1][:, 0], ends[0][:, -1],
                         ends[1][:, -1], ends[2][:, -1], ends[3][:, -1])
-    fix = model.outcome_correction.correction(x)[0]
+    # its correction reads the box's cloud as the predictor samples it, thinned to 64, in the push's travel frame
+    from physdyn.data.windows import world_oriented_points
+    from physdyn.predict.body import prepare_body
+
+    correction = model.outcome_correction
+    assert (correction.num_points, correction.thinned_from) == (64, 256)
+    cloud = prepare_body(box).points_body(predictor.num_points, predictor.points_method)
+    seen = np.einsum("bij,bnj->bni", turn, world_oriented_points(correction.body_clouds(cloud[None]), ends[1][:, 0]))
+    fix = correction.correction(x, seen)[0]
     moved = mine["com_position"][-1, :2] - prior["com_position"][-1, :2]
     np.testing.assert_allclose([moved @ turn[0, 0, :2], moved @ turn[0, 1, :2]], fix[:2], atol=1e-9)
     # one request alone, or padded beside a longer one in a batch: the same prediction
