@@ -22,7 +22,8 @@ def register(sub: argparse._SubParsersAction) -> None:
             "that read the push (step-0 velocity and spin in the frame of its travel, I_zz / m) and where the "
             "roll-out came to rest, and give the truth minus that resting pose (displacement along and across "
             "the travel, turn about the vertical); one network per --seeds, averaged, chosen on the stores' "
-            "validation splits. Predictions of the written checkpoint then end at the corrected pose, the "
+            "validation splits; with --pointnet the networks also read each push's step-0 cloud in the frame of "
+            "its travel. Predictions of the written checkpoint then end at the corrected pose, the "
             "correction spread over the trajectory (physdyn/models/outcome_correction.py). --checkpoint "
             f"{PRIOR} starts from the contact prior alone (no network). Why and how well: docs/model-card.md."
         ),
@@ -43,16 +44,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--num-points", type=int, default=None,
                    help="with --pointnet: read each cloud thinned to this many points, hull vertices first (the "
                         "per-push cost scales with it); default: the stores' clouds whole")
-    p.add_argument("--widths", type=int, nargs="+", default=[64, 128, 256],
+    p.add_argument("--widths", type=int, nargs="+", default=None,
                    help="--pointnet: the per-point layers' widths, the last also the head's (default 64 128 256; the "
                         "shipped fast's: 32 64 128, a quarter of the per-push cost)")
-    p.add_argument("--device", default="cpu", help="where --pointnet networks train: cpu or cuda")
+    p.add_argument("--device", default=None, help="where --pointnet networks train: cpu (default), cuda or cuda:N")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out")
     p.set_defaults(func=run, parser=p)
 
 
 def run(args: argparse.Namespace) -> int:
-    from physdyn.cli.fit_topple import checked_out
+    from physdyn.cli.fit_topple import _check_device, checked_out
     from physdyn.data.store import load_store
     from physdyn.eval.baselines import checkpoint_and_store
     from physdyn.eval.outcome_fit import fit_outcome_correction
@@ -63,18 +64,16 @@ def run(args: argparse.Namespace) -> int:
     if min(args.seeds) < 0 or args.steps < MIN_STEPS or args.batch < 1:
         raise PhysdynError(f"--seeds must be >= 0, --steps at least {MIN_STEPS} (the networks are checked 20 times) "
                            f"and --batch at least 1; got {args.seeds}, {args.steps}, {args.batch}")
-    if args.num_points is not None and not args.pointnet:
-        raise PhysdynError("--num-points is for --pointnet networks, which read the cloud; add --pointnet or drop it")
-    if args.pointnet and (len(args.widths) < 2 or min(args.widths) < 1):
+    for flag, value in (("--num-points", args.num_points), ("--widths", args.widths), ("--device", args.device)):
+        if value is not None and not args.pointnet:
+            raise PhysdynError(f"{flag} is for --pointnet networks, which read the cloud; add --pointnet or drop it")
+    args.widths = args.widths or [64, 128, 256]
+    if len(args.widths) < 2 or min(args.widths) < 1:
         raise PhysdynError(f"--widths takes two or more layer widths of at least 1 (e.g. 64 128 256), got {args.widths}")
     if args.num_points is not None and args.num_points < 4:
         raise PhysdynError(f"--num-points must be at least 4 (a cloud with volume), got {args.num_points}")
-    if args.device != "cpu":
-        import torch
-
-        if not args.device.startswith("cuda") or not torch.cuda.is_available():
-            raise PhysdynError(f"--device {args.device}: no such device here (torch sees "
-                               f"{'a CUDA GPU' if torch.cuda.is_available() else 'no CUDA GPU'}); use --device cpu")
+    args.device = args.device or "cpu"
+    _check_device(args.device)
     if args.checkpoint == PRIOR and not Path(PRIOR).is_file():  # a file of that name comes first, as for 'fast'
         if not args.data:
             raise PhysdynError(f"--checkpoint {PRIOR} has no store of its own; pass --data STORE")

@@ -123,6 +123,12 @@ def predict_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, truth: 
         raise PhysdynError(f"the checkpoint's topple classifier reads {wants} clouds of {held} points "
                            f"and {store.url} holds {store.points_method} ones of {store.points.shape[1]}; test it on a "
                            f"store made with points_method: {wants}, num_points: {held}")
+    correction = getattr(predictor, "outcome_correction", None)
+    reads = getattr(correction, "num_points", 0) and (correction.thinned_from or correction.num_points)
+    if reads and (store.points.shape[1] != reads or (correction.thinned_from and store.points_method != "hull_surface")):
+        raise PhysdynError(f"the checkpoint's outcome correction reads hull_surface clouds of {reads} points and {store.url} "
+                           f"holds {store.points_method} ones of {store.points.shape[1]}; test it on a store made with "
+                           f"points_method: hull_surface, num_points: {reads}")
     model_reads = str(getattr(predictor, "data_info", {}).get("points_method") or "surface")
     if wants is not None and model_reads != wants:  # one store cannot feed both: the model would get the wrong kind
         raise PhysdynError(f"the model reads {model_reads} clouds and its topple classifier {wants} ones; a store holds "

@@ -182,7 +182,9 @@ def rollout(
     and for an outcome correction (``physdyn fit-outcome``; without it or ``body_inertia``, estimated from
     the cloud).
     A model with an ``outcome_correction`` has the resting pose of each push that comes to rest without
-    toppling corrected, the correction spread over its trajectory (``physdyn.models.outcome_correction``);
+    toppling corrected, the correction spread over its trajectory (``physdyn.models.outcome_correction``; one
+    fitted with ``--pointnet`` reads ``points_body`` thinned as its topple PointNet's, the cloud that classifier
+    thinned when it was given the same one);
     ``lengths`` (B,): each sequence's own number of states (steps + 1) where a batch is padded to its longest,
     so that each is judged at its own end, as alone (``Predictor.predict_many`` passes them; without them
     every sequence is judged at the batch's horizon, as a request of that length: ``physdyn test`` on a store

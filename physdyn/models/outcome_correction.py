@@ -7,7 +7,9 @@ carried a gain to meshes they never saw. This corrects the end instead: a small 
 step-0 velocity and spin in the frame of its travel, I_zz / m) and where the roll-out came to rest (its
 displacement along and across the travel, its turn about the vertical, and its last velocities), and gives
 the truth minus that resting pose, trained on thousands of shapes' pushes, half of each batch mirrored
-across its travel. One network per seed, averaged. Measured in docs/ablations.md ("Correcting where the
+across its travel. One network per seed, averaged. With ``fit-outcome --pointnet`` each network is a small
+PointNet that also reads the push's step-0 cloud in the frame of its travel (``ToppleNet`` with three
+outputs; docs/ablations.md, "Reading the cloud where the push ends"). Measured in docs/ablations.md ("Correcting where the
 push ends"), where richer inputs (the roll-out's state early in the impact, how long and how far it moved,
 the centre of mass's height) were tried and not kept.
 
@@ -31,6 +33,7 @@ from physdyn.models.topple_pointnet import (MIN_STEPS, POINT_WIDTHS, ToppleNet, 
                                            thinned_clouds, travel_scalars, travel_turn)
 
 KIND = "outcome_mlp"
+POINTNET_KIND = "outcome_pointnet"  # fit-outcome --pointnet: an older physdyn says it does not know it
 INPUTS = 13  # step-0 velocity (3) and spin (3) in the travel frame, the resting state (6), I_zz / m
 TARGETS = ("along", "across", "yaw")  # truth minus roll-out at rest: displacement in the travel frame, turn
 # Mirrored across its travel (y -> -y), a push is a push of the mirrored shape: velocities (along, across, up)
@@ -42,6 +45,7 @@ MIRROR_TARGETS = np.array([1.0, -1.0, -1.0])
 # networks' own velocities settle near, not at, zero).
 REST_SPEED = 0.02   # m/s
 REST_SPIN = 0.2     # rad/s
+CONSTANT_INPUT = 1e-6  # an input whose spread over the training pushes is below this was the same for all
 EXTRA_STEPS = 15    # fitting rolls each push out this far past its truth's end, as a long request would
 
 
@@ -119,7 +123,11 @@ class OutcomeCorrection:
 
     def body_clouds(self, points_body: np.ndarray) -> np.ndarray:
         """The body-frame clouds (B, num_points, 3) it reads, from those it is given (B, N, 3): thinned as at
-        fitting where it was fitted on thinned ones, else as they are."""
+        fitting where it was fitted on thinned ones, else as they are. N must be the size it was fitted on."""
+        given = np.shape(points_body)[1]
+        if given != (self.thinned_from or self.num_points):
+            raise ValueError(f"this outcome correction was fitted on hull_surface clouds of {self.thinned_from or self.num_points} "
+                             f"points and is given {given}: give it clouds of the size its model reads")
         return thinned_clouds(points_body, self.num_points if self.thinned_from else 0, self._thinned)
 
     def correction(self, inputs: np.ndarray, clouds: np.ndarray | None = None) -> np.ndarray:
@@ -127,6 +135,10 @@ class OutcomeCorrection:
         about the vertical (rad) to add to the resting pose (the mean of the networks'). ``clouds`` (B,
         num_points, 3): each push's step-0 cloud in its travel frame, for PointNets (``num_points`` > 0)."""
         x = (np.asarray(inputs, dtype=np.float64) - self.inputs_mean) / self.inputs_std
+        # An input every training push had the same value of (the resting velocities: roll-outs ran past rest;
+        # the velocity across the travel: zero by its frame) reads as training saw it: a request cut off while
+        # still slowing has 0.01 m/s there, which over the 1e-9 of its spread made kilometres
+        x[:, self.inputs_std < CONSTANT_INPUT] = 0.0
         if self.num_points:
             if clouds is None:
                 raise ValueError("this outcome correction reads each push's cloud: pass clouds")
@@ -189,7 +201,7 @@ class OutcomeCorrection:
 
     def to_dict(self) -> dict[str, Any]:
         # tensors, lists and numbers only: checkpoints are read without running code (docs/security.md)
-        return {"kind": KIND, "networks": [{k: t.detach().cpu().clone() for k, t in s.items()} for s in self.networks],
+        return {"kind": POINTNET_KIND if self.num_points else KIND, "networks": [{k: t.detach().cpu().clone() for k, t in s.items()} for s in self.networks],
                 "inputs_mean": self.inputs_mean.tolist(), "inputs_std": self.inputs_std.tolist(),
                 "targets_mean": self.targets_mean.tolist(), "targets_std": self.targets_std.tolist(),
                 "width": int(self.width), "num_points": int(self.num_points), "thinned_from": int(self.thinned_from),
@@ -197,7 +209,7 @@ class OutcomeCorrection:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "OutcomeCorrection":
-        if d.get("kind") != KIND:
+        if d.get("kind") not in (KIND, POINTNET_KIND):
             raise ValueError(f"unknown outcome correction kind {d.get('kind')!r}")
         return cls([dict(s) for s in d["networks"]], np.asarray(d["inputs_mean"]), np.asarray(d["inputs_std"]),
                    np.asarray(d["targets_mean"]), np.asarray(d["targets_std"]), int(d["width"]),
@@ -331,7 +343,8 @@ def train_outcome_pointnet(inputs: np.ndarray, targets: np.ndarray, clouds: np.n
     for step in range(steps):
         idx = train_t[torch.randint(len(train_t), (batch,), device=dev)]
         m = torch.rand(batch, device=dev) < 0.5
-        cloud = torch.where(m[:, None, None], cloud_of(idx) * flip_y, cloud_of(idx))
+        cloud = cloud_of(idx)
+        cloud = torch.where(m[:, None, None], cloud * flip_y, cloud)
         loss = torch.nn.functional.smooth_l1_loss(net(cloud, torch.where(m[:, None], xm[idx], x[idx])),
                                                   torch.where(m[:, None], ym[idx], y[idx]))
         opt.zero_grad(set_to_none=True)

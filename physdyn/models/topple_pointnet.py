@@ -36,13 +36,13 @@ MIRROR_SCALARS = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0, 1.0], dtype=np.float
 MIN_STEPS = 20  # training steps: the best of 20 validation checks is kept
 PUSHES_PER_PASS = 32  # pushes per forward pass at prediction (``_in_passes``)
 POINT_WIDTHS = (64, 128)  # the per-point layers' widths before the last (of ``width``): the per-push cost
-THINNED_KEPT = 256  # thinned clouds kept by a classifier, the latest (``body_clouds``)
+THINNED_KEPT = 256  # thinned clouds kept by a classifier or outcome correction, the latest (``thinned_clouds``)
 INERTIA_SHAPE_FACTOR = 0.8  # I_zz / m from a bare cloud: 0.8 x its mean squared horizontal radius (the contact prior's)
 
 
 class ToppleNet(torch.nn.Module):
     """One network: PointNet over (x, y, z, height above the lowest point) in decimetres, joined with the
-    standardised scalars; one logit."""
+    standardised scalars; one logit (or ``outputs`` numbers: the outcome correction's PointNet)."""
 
     def __init__(self, width: int = 256, scalars: int = SCALARS, point_widths: tuple[int, ...] = POINT_WIDTHS,
                  outputs: int = 1):
@@ -67,7 +67,7 @@ class ToppleNet(torch.nn.Module):
 
 
 def _in_passes(net: ToppleNet, cloud: torch.Tensor, scalars: torch.Tensor) -> torch.Tensor:
-    """``net``'s logits (B,) a few pushes at a time: the per-point layers' activations of PUSHES_PER_PASS
+    """``net``'s outputs ((B,) logits, or (B, outputs)) a few pushes at a time: the per-point layers' activations of PUSHES_PER_PASS
     pushes stay in the CPU's cache, where those of 512 pushes (130 MB) do not: about 0.6x the cost a push
     for 512, the same numbers to float32 rounding (docs/ablations.md, "A cheaper fast")."""
     if len(cloud) <= PUSHES_PER_PASS:

@@ -64,10 +64,62 @@ def test_a_pointnet_correction_reads_the_thinned_cloud_and_learns(fitted_pointne
     assert np.abs(fixes[0] - fixes[1]).max() > 1e-6 and np.abs(fixes[0] - fixes[2]).max() > 1e-6
     with pytest.raises(ValueError, match="reads each push's cloud"):
         correction.correction(inputs)
+    with pytest.raises(ValueError, match="fitted on hull_surface clouds of 64 points and is given 16"):
+        correction.body_clouds(clouds)
     # a checkpoint's copy (tensors, lists and numbers) corrects alike
     again = OutcomeCorrection.from_dict(correction.to_dict())
     np.testing.assert_array_equal(again.correction(inputs, clouds), fixes)
     assert (again.num_points, again.thinned_from) == (16, store.points.shape[1])
+
+
+def test_what_its_networks_trained_on_is_what_a_roll_out_gives_them(fitted_pointnet):
+    from physdyn.data.windows import store_spin_inertia, store_world_inertia
+    from physdyn.eval.outcome_fit import EXTRA_STEPS, outcome_training_data
+    from physdyn.eval.rollout import rollout
+    from physdyn.geometry.rotations import quat_conjugate
+    from physdyn.models.topple_pointnet import travel_turn
+
+    store, correction, _ = fitted_pointnet
+    model = contact_prior_predictor(rate_hz=store.rate_hz, num_points=store.points.shape[1]).model
+    data = outcome_training_data(model, [store], correction.num_points)
+    rows = data["val"][:6]
+    # what the training read for these pushes: the frame and thinned cloud of outcome_training_data
+    fix = correction.correction(data["inputs"][rows], np.einsum("bij,bnj->bni", data["frame"][rows],
+                                                                 data["clouds"][data["shape"][rows]]))
+    # the same pushes rolled out as fitting does, with the correction and without: the ends differ by that
+    sims = np.flatnonzero(store.topple_step < 0)
+    horizon = int(store.lengths()[sims].max()) - 1 + EXTRA_STEPS
+    sims = sims[rows]
+    first = store.start[sims]
+    q0, p0 = store.orientation_xyzw[first], store.com_position[first]
+    v0, w0 = store.linear_velocity[first], store.angular_velocity[first]
+    kwargs = {"spin_inertia": store_spin_inertia(store, sims, q0), "body_inertia": store_world_inertia(store, sims, q0)}
+    plain = rollout(model, store.points[store.shape_id[sims]], q0, p0, v0, w0, horizon, **kwargs)
+    model.outcome_correction = correction
+    moved = rollout(model, store.points[store.shape_id[sims]], q0, p0, v0, w0, horizon, **kwargs)
+    turn = travel_turn(v0)
+    shift = moved.com_position[:, -1] - plain.com_position[:, -1]
+    np.testing.assert_allclose(np.einsum("bij,bj->bi", turn, shift)[:, :2], fix[:, :2], atol=1e-6)
+    np.testing.assert_allclose(yaw_of(quat_multiply(moved.orientation_xyzw[:, -1],
+                                                    quat_conjugate(plain.orientation_xyzw[:, -1]))), fix[:, 2], atol=1e-6)
+
+
+def test_an_input_every_training_push_shared_reads_as_it_did_in_training():
+    # the resting velocities were zero in every training push (roll-outs ran past rest); a request cut off
+    # while still slowing (under the rest speed) must not be corrected by kilometres (it was)
+    net = OutcomeNet(8)
+    correction = OutcomeCorrection([net.state_dict()], np.zeros(13), np.r_[np.ones(6), np.full(3, 1e-9), np.ones(4)],
+                                   np.zeros(3), np.ones(3), width=8)
+    rest, slowing = np.zeros((1, 13)), np.zeros((1, 13))
+    slowing[0, 6:9] = [0.015, -0.01, 0.1]
+    np.testing.assert_array_equal(correction.correction(slowing), correction.correction(rest))
+    # the shipped model: a box pushed for 0.2 s ends near where the contact prior puts it
+    from physdyn.predict.predictor import load_predictor
+
+    box = trimesh.creation.box((0.1, 0.06, 0.04))
+    for v0, seconds in (([0.35, 0.0, 0.0], 0.2), ([0.3, 0.0, 0.0], 2 / 15)):
+        mine = load_predictor("fast").predict(box, v0, [0.0, 0.0, 0.0], seconds=seconds)
+        assert np.abs(mine["com_position"][-1, :2]).max() < 0.1 and np.abs(mine["linear_velocity"]).max() < 1.0
 
 
 def test_a_pointnet_correction_moves_predictions_with_no_simulator_and_a_padded_batch_equals_each(fitted_pointnet,
@@ -234,7 +286,9 @@ def test_fit_outcome_writes_a_checkpoint_that_predicts_with_no_simulator(tiny_hu
                          (["--checkpoint", "contact_prior", "--data", tiny_hull_store, "--pointnet", "--num-points", "64"],
                           "not below"),
                          (["--checkpoint", "contact_prior", "--data", tiny_hull_store, "--pointnet", "--device", "tpu"],
-                          "no such device"),
+                          "use cpu, cuda or cuda:N"),
+                         (["--checkpoint", "contact_prior", "--data", tiny_hull_store, "--device", "cpu"], "add --pointnet"),
+                         (["--checkpoint", "contact_prior", "--data", tiny_hull_store, "--widths", "8", "16"], "add --pointnet"),
                          (["--checkpoint", "contact_prior", "--data", tiny_store], "hull_surface"),
                          (["--checkpoint", "contact_prior", "--data", tiny_hull_store, "--steps", "3"], "at least 20")):
         assert main(["fit-outcome", *bad, "--out", str(tmp_path / "bad.ckpt")]) == 2
