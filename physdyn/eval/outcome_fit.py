@@ -1,6 +1,5 @@
 """Fitting ``physdyn fit-outcome``'s correction: the model rolled out on a store's pushes (eval's roll-out),
-then ``physdyn.models.outcome_correction.train_outcome_network`` (or, ``--pointnet``, ``train_outcome_pointnet``)
-per seed."""
+then ``physdyn.models.outcome_correction.train_outcome_network`` per seed (with the clouds, ``--pointnet``)."""
 
 from __future__ import annotations
 
@@ -13,7 +12,7 @@ from physdyn.errors import PhysdynError
 from physdyn.eval.rollout import rollout
 from physdyn.geometry.rotations import quat_to_matrix, wrap_angle
 from physdyn.models.outcome_correction import (EXTRA_STEPS, REST_SPEED, REST_SPIN, OutcomeCorrection, outcome_inputs,
-                                               resting_state, train_outcome_network, train_outcome_pointnet)
+                                               resting_state, train_outcome_network)
 from physdyn.models.topple_pointnet import POINT_WIDTHS
 
 
@@ -107,13 +106,9 @@ def fit_outcome_correction(model: Any, stores: list[Any], seeds: tuple[int, ...]
     def report_to(s: int) -> Callable[[int, float], None]:
         return lambda step, error: say(f"network {s}: step {step}/{steps}, validation error {error:.3f}")
 
-    if pointnet:
-        runs = [train_outcome_pointnet(data["inputs"], data["targets"], data["clouds"], data["shape"], data["frame"],
-                                       data["train"], data["val"], steps, batch, width, seed, device, point_widths,
-                                       progress=report_to(seed)) for seed in seeds]
-    else:
-        runs = [train_outcome_network(data["inputs"], data["targets"], data["train"], data["val"], steps, batch, width,
-                                      seed, report_to(seed)) for seed in seeds]
+    clouds = {"clouds": data["clouds"], "shape": data["shape"], "frame": data["frame"]} if pointnet else {}
+    runs = [train_outcome_network(data["inputs"], data["targets"], data["train"], data["val"], steps, batch, width, seed,
+                                  report_to(seed), device=device, point_widths=point_widths, **clouds) for seed in seeds]
     correction = correction_from_runs(runs, data, width, pointnet, point_widths)
     return correction, outcome_report(correction, data)
 

@@ -270,53 +270,15 @@ def correct_rollout(model: Any, states: dict[str, np.ndarray], v0: np.ndarray, w
 # --------------------------------------------------------------------------------------------------
 def train_outcome_network(inputs: np.ndarray, targets: np.ndarray, train: np.ndarray, val: np.ndarray,
                           steps: int = 6000, batch: int = 1024, width: int = 256, seed: int = 0,
-                          progress: Callable[[int, float], None] | None = None) -> dict[str, Any]:
+                          progress: Callable[[int, float], None] | None = None, clouds: np.ndarray | None = None,
+                          shape: np.ndarray | None = None, frame: np.ndarray | None = None, device: str = "cpu",
+                          point_widths: tuple[int, ...] = POINT_WIDTHS, minutes: float | None = None) -> dict[str, Any]:
     """One network on the pushes ``train``, its checkpoint the best of 20 checks of the mean standardised
     |error| on ``val``: AdamW (lr 1e-3, weight decay 1e-4), one-cycle schedule, smooth-L1, half of each
-    batch mirrored across its travel."""
-    if steps < MIN_STEPS:
-        raise ValueError(f"steps must be at least {MIN_STEPS} (the network is checked 20 times), got {steps}")
-    torch.manual_seed(seed)
-    mu, sd = inputs[train].mean(0), inputs[train].std(0) + 1e-9
-    ymu, ysd = targets[train].mean(0), targets[train].std(0) + 1e-9
-    x = torch.tensor((inputs - mu) / sd, dtype=torch.float32)
-    xm = torch.tensor((inputs * MIRROR_INPUTS - mu) / sd, dtype=torch.float32)
-    y = torch.tensor((targets - ymu) / ysd, dtype=torch.float32)
-    ym = torch.tensor((targets * MIRROR_TARGETS - ymu) / ysd, dtype=torch.float32)
-    net = OutcomeNet(width, inputs.shape[1])
-    opt = torch.optim.AdamW(net.parameters(), lr=1e-3, weight_decay=1e-4)
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=1e-3, total_steps=steps, pct_start=max(0.05, 2.0 / steps))
-    train_t, val_t = torch.tensor(train), torch.tensor(val)
-    best, best_state, started = np.inf, None, time.time()
-    for step in range(steps):
-        idx = train_t[torch.randint(len(train_t), (batch,))]
-        m = (torch.rand(batch) < 0.5)[:, None]
-        loss = torch.nn.functional.smooth_l1_loss(net(torch.where(m, xm[idx], x[idx])), torch.where(m, ym[idx], y[idx]))
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        sched.step()
-        if (step + 1) % max(1, steps // 20) == 0 or step + 1 == steps:
-            net.eval()
-            with torch.no_grad():
-                error = float((net(x[val_t]) - y[val_t]).abs().mean())
-            net.train()
-            if error < best:
-                best, best_state = error, {k: t.detach().clone() for k, t in net.state_dict().items()}
-            if progress is not None:
-                progress(step + 1, error)
-    return {"state_dict": best_state, "inputs_mean": mu, "inputs_std": sd, "targets_mean": ymu, "targets_std": ysd,
-            "val_error": best, "seconds": time.time() - started}
-
-
-def train_outcome_pointnet(inputs: np.ndarray, targets: np.ndarray, clouds: np.ndarray, shape: np.ndarray,
-                           frame: np.ndarray, train: np.ndarray, val: np.ndarray, steps: int = 10000, batch: int = 1024,
-                           width: int = 256, seed: int = 0, device: str = "cpu",
-                           point_widths: tuple[int, ...] = POINT_WIDTHS, minutes: float | None = None,
-                           progress: Callable[[int, float], None] | None = None) -> dict[str, Any]:
-    """``train_outcome_network`` with a PointNet that also reads each push's cloud: ``clouds`` (S, N, 3) body
-    frame, ``shape`` (P,) each push's, ``frame`` (P, 3, 3) body -> its travel frame at step 0. The mirrored
-    half of each batch has its cloud mirrored too. ``minutes``: stop then, keeping the best so far."""
+    batch mirrored across its travel. With ``clouds`` (S, N, 3) body frame, ``shape`` (P,) each push's and
+    ``frame`` (P, 3, 3) body -> its travel frame at step 0: a PointNet that also reads each push's cloud (the
+    mirrored half's cloud mirrored too; ``fit-outcome --pointnet``). ``minutes``: stop then, keeping the best
+    so far."""
     if steps < MIN_STEPS:
         raise ValueError(f"steps must be at least {MIN_STEPS} (the network is checked 20 times), got {steps}")
     dev = torch.device(device)
@@ -329,13 +291,23 @@ def train_outcome_pointnet(inputs: np.ndarray, targets: np.ndarray, clouds: np.n
 
     x, xm = tensor((inputs - mu) / sd), tensor((inputs * MIRROR_INPUTS - mu) / sd)
     y, ym = tensor((targets - ymu) / ysd), tensor((targets * MIRROR_TARGETS - ymu) / ysd)
-    cloud_t, frame_t, shape_t = tensor(clouds), tensor(frame), tensor(shape, torch.int64)
-    flip_y = torch.tensor([1.0, -1.0, 1.0], device=dev)
+    if clouds is None:
+        net: torch.nn.Module = OutcomeNet(width, inputs.shape[1]).to(dev)
+    else:
+        net = ToppleNet(width, INPUTS, tuple(point_widths), outputs=len(TARGETS)).to(dev)
+        cloud_t, frame_t, shape_t = tensor(clouds), tensor(frame), tensor(shape, torch.int64)
+        flip_y = torch.tensor([1.0, -1.0, 1.0], device=dev)
 
-    def cloud_of(idx: torch.Tensor) -> torch.Tensor:
-        return torch.einsum("bij,bnj->bni", frame_t[idx], cloud_t[shape_t[idx]])
+    def run(idx: torch.Tensor, mirrored: torch.Tensor | None = None) -> torch.Tensor:
+        """The network on the pushes ``idx``, those ``mirrored`` (B,) mirrored across their travel."""
+        inputs_in = x[idx] if mirrored is None else torch.where(mirrored[:, None], xm[idx], x[idx])
+        if clouds is None:
+            return net(inputs_in)
+        cloud = torch.einsum("bij,bnj->bni", frame_t[idx], cloud_t[shape_t[idx]])
+        if mirrored is not None:
+            cloud = torch.where(mirrored[:, None, None], cloud * flip_y, cloud)
+        return net(cloud, inputs_in)
 
-    net = ToppleNet(width, INPUTS, tuple(point_widths), outputs=len(TARGETS)).to(dev)
     opt = torch.optim.AdamW(net.parameters(), lr=1e-3, weight_decay=1e-4)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=1e-3, total_steps=steps, pct_start=max(0.05, 2.0 / steps))
     train_t, val_t = tensor(train, torch.int64), tensor(val, torch.int64)
@@ -343,10 +315,7 @@ def train_outcome_pointnet(inputs: np.ndarray, targets: np.ndarray, clouds: np.n
     for step in range(steps):
         idx = train_t[torch.randint(len(train_t), (batch,), device=dev)]
         m = torch.rand(batch, device=dev) < 0.5
-        cloud = cloud_of(idx)
-        cloud = torch.where(m[:, None, None], cloud * flip_y, cloud)
-        loss = torch.nn.functional.smooth_l1_loss(net(cloud, torch.where(m[:, None], xm[idx], x[idx])),
-                                                  torch.where(m[:, None], ym[idx], y[idx]))
+        loss = torch.nn.functional.smooth_l1_loss(run(idx, m), torch.where(m[:, None], ym[idx], y[idx]))
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
@@ -354,7 +323,7 @@ def train_outcome_pointnet(inputs: np.ndarray, targets: np.ndarray, clouds: np.n
         if (step + 1) % max(1, steps // 20) == 0 or step + 1 == steps:
             net.eval()
             with torch.no_grad():
-                error = float(torch.cat([(net(cloud_of(part), x[part]) - y[part]).abs() for part in val_t.split(8192)]).mean())
+                error = float(torch.cat([(run(part) - y[part]).abs() for part in val_t.split(8192)]).mean())
             net.train()
             if error < best:
                 best, best_state = error, {k: t.detach().cpu().clone() for k, t in net.state_dict().items()}
