@@ -119,9 +119,11 @@ def stages(checkpoint: str, set_name: str) -> None:
                                (body.PreparedBody, "points_body", "the hull_surface cloud"),
                                (predictor_module, "rollout", "the roll-out"),
                                (single_rollout.SingleRollout, "run", "  the contact prior's steps"),
+                               (topple_pointnet, "thinned_clouds", "  thinning the cloud (qhull, FPS)"),
                                (topple_pointnet.PointNetToppleClassifier, "predict", "  the topple PointNet"),
                                (dynamics_module.DynamicsModel, "encode", "  the shape code (footprint)"),
-                               (outcome_correction, "correct_rollout", "  the outcome correction")):
+                               (outcome_correction, "correct_rollout", "  the outcome correction"),
+                               (outcome_correction.OutcomeCorrection, "correction", "    its networks")):
         timed(owner, name, label)
     req = requests_from_store(truth_store(collect_set(set_name, FRONTIER, 60), 5))
     meshes = {key: load_mesh(key) for key in dict.fromkeys(req.mesh)}

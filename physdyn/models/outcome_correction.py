@@ -29,8 +29,8 @@ import numpy as np
 import torch
 
 from physdyn.geometry.rotations import quat_conjugate, quat_multiply, rotvec_to_quat, world_delta_rotvec, wrap_angle
-from physdyn.models.topple_pointnet import (MIN_STEPS, POINT_WIDTHS, ToppleNet, _in_passes, cloud_spin_inertia,
-                                           thinned_clouds, travel_scalars, travel_turn)
+from physdyn.models.topple_pointnet import (MIN_STEPS, PUSHES_PER_PASS, POINT_WIDTHS, ToppleNet, cloud_spin_inertia,
+                                           numpy_forward, numpy_layers, thinned_clouds, travel_scalars, travel_turn)
 
 KIND = "outcome_mlp"
 POINTNET_KIND = "outcome_pointnet"  # fit-outcome --pointnet: an older physdyn says it does not know it
@@ -102,16 +102,17 @@ class OutcomeCorrection:
     thinned_from: int = 0
     point_widths: tuple[int, ...] = POINT_WIDTHS
     _layers: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list, repr=False, compare=False)
-    _modules: list[ToppleNet] = field(default_factory=list, repr=False, compare=False)
+    _pointnets: list[tuple[list, list]] = field(default_factory=list, repr=False, compare=False)
     _thinned: dict[bytes, np.ndarray] = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.num_points:
-            self._modules = []
+            # on numpy (``numpy_forward``), as the MLPs below: torch's per-call overhead was most of a push's cost
+            self._pointnets = []
             for state in self.networks:
                 net = ToppleNet(self.width, INPUTS, tuple(self.point_widths), outputs=len(TARGETS))
                 net.load_state_dict(state)
-                self._modules.append(net.eval())
+                self._pointnets.append(numpy_layers(net))
             return
         # The networks' layers stacked, on numpy: one prediction is a few small products, where torch's
         # per-call overhead would cost a millisecond (issue #26 counts every one of a new mesh's)
@@ -142,9 +143,12 @@ class OutcomeCorrection:
         if self.num_points:
             if clouds is None:
                 raise ValueError("this outcome correction reads each push's cloud: pass clouds")
-            c, xt = torch.tensor(clouds, dtype=torch.float32), torch.tensor(x, dtype=torch.float32)
-            with torch.no_grad():
-                h = np.mean([_in_passes(net, c, xt).numpy() for net in self._modules], axis=0).astype(np.float64)
+            if not len(x):
+                return np.zeros((0, len(TARGETS)))
+            # a few pushes a pass: their per-point activations stay in the cache (as the topple PointNet's)
+            h = np.mean([np.concatenate([numpy_forward(layers, clouds[i : i + PUSHES_PER_PASS], x[i : i + PUSHES_PER_PASS])
+                                         for i in range(0, len(x), PUSHES_PER_PASS)]) for layers in self._pointnets],
+                        axis=0).astype(np.float64)
             return h * self.targets_std + self.targets_mean
         h = x[None]
         for i, (weight, bias) in enumerate(self._layers):

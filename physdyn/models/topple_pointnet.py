@@ -76,6 +76,34 @@ def _in_passes(net: ToppleNet, cloud: torch.Tensor, scalars: torch.Tensor) -> to
                       for i in range(0, len(cloud), PUSHES_PER_PASS)])
 
 
+def numpy_layers(net: ToppleNet) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[tuple[np.ndarray, np.ndarray]]]:
+    """``net``'s per-point and head layers as float32 (weight transposed, bias) pairs, for ``numpy_forward``."""
+    def pairs(seq: torch.nn.Sequential) -> list[tuple[np.ndarray, np.ndarray]]:
+        return [(np.ascontiguousarray(m.weight.detach().numpy().T, dtype=np.float32),
+                 np.asarray(m.bias.detach().numpy(), dtype=np.float32)) for m in seq if isinstance(m, torch.nn.Linear)]
+    return pairs(net.points), pairs(net.head)
+
+
+def numpy_forward(layers: tuple[list, list], cloud: np.ndarray, scalars: np.ndarray) -> np.ndarray:
+    """``ToppleNet.forward`` on numpy, float32, ``layers`` from ``numpy_layers``: (B, N, 3), (B, S) -> (B,
+    outputs). The same numbers to float32 rounding (a few 1e-7 of the outputs); for a small network torch's
+    per-call overhead is most of one push's cost (0.46 against 0.07 ms for ``fast``'s outcome correction)."""
+    points, head = layers
+    cloud = np.asarray(cloud, dtype=np.float32)
+    height = cloud[..., 2:3] - cloud[..., 2:3].min(axis=1, keepdims=True)
+    h = np.concatenate([cloud * np.float32(10.0), height * np.float32(10.0)], axis=-1)
+    for i, (weight, bias) in enumerate(points):
+        h = h @ weight + bias
+        if i + 1 < len(points):
+            np.maximum(h, 0.0, out=h)
+    h = np.concatenate([h.max(axis=1), np.asarray(scalars, dtype=np.float32)], axis=-1)
+    for i, (weight, bias) in enumerate(head):
+        h = h @ weight + bias
+        if i + 1 < len(head):
+            np.maximum(h, 0.0, out=h)
+    return h
+
+
 def thinned_clouds(points_body: np.ndarray, count: int, cache: dict[bytes, np.ndarray]) -> np.ndarray:
     """(B, count, 3) float32: each body-frame cloud of (B, N, 3) thinned by ``thin_hull_surface``, each distinct
     cloud once (``cache``, the latest THINNED_KEPT); as given where ``count`` is 0 or not below N."""

@@ -66,6 +66,18 @@ def test_a_pointnet_correction_reads_the_thinned_cloud_and_learns(fitted_pointne
         correction.correction(inputs)
     with pytest.raises(ValueError, match="fitted on hull_surface clouds of 64 points and is given 16"):
         correction.body_clouds(clouds)
+    # its networks run on numpy: the torch network's numbers to float32 rounding, a push alone as in a batch
+    from physdyn.models.topple_pointnet import ToppleNet
+
+    net = ToppleNet(correction.width, 13, tuple(correction.point_widths), outputs=3)
+    net.load_state_dict(correction.networks[0])
+    standard = (inputs - correction.inputs_mean) / correction.inputs_std
+    standard[:, correction.inputs_std < 1e-6] = 0.0
+    with torch.no_grad():
+        torch_fix = net(torch.tensor(clouds), torch.tensor(standard, dtype=torch.float32)).double().numpy()
+    np.testing.assert_allclose(fixes, torch_fix * correction.targets_std + correction.targets_mean, rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(correction.correction(inputs[1:2], clouds[1:2]), fixes[1:2], rtol=1e-6, atol=1e-9)
+    assert correction.correction(inputs[:0], clouds[:0]).shape == (0, 3)
     # a checkpoint's copy (tensors, lists and numbers) corrects alike
     again = OutcomeCorrection.from_dict(correction.to_dict())
     np.testing.assert_array_equal(again.correction(inputs, clouds), fixes)
