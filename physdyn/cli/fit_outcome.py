@@ -36,7 +36,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                                                     "trained on; required with " + PRIOR + ")")
     p.add_argument("--out", required=True, help="the checkpoint to write (.ckpt)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0], help="one network per seed (averaged)")
-    p.add_argument("--steps", type=int, default=6000, help="training steps per network (default: ~30 s each on one core)")
+    p.add_argument("--steps", type=int, default=6000, help="training steps per network (default 6000: ~30 s each on one core; "
+                                                               "--pointnet networks take ~0.4 s a step on the CPU)")
     p.add_argument("--batch", type=int, default=1024, help="pushes per training step")
     p.add_argument("--pointnet", action="store_true",
                    help="networks that also read each push's step-0 cloud (a PointNet; the stores' hull_surface clouds): "
