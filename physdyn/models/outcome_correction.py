@@ -285,6 +285,8 @@ def train_outcome_network(inputs: np.ndarray, targets: np.ndarray, train: np.nda
     so far."""
     if steps < MIN_STEPS:
         raise ValueError(f"steps must be at least {MIN_STEPS} (the network is checked 20 times), got {steps}")
+    if clouds is not None and (shape is None or frame is None):
+        raise ValueError("a PointNet correction trains on clouds with each push's shape and frame: pass all three")
     dev = torch.device(device)
     torch.manual_seed(seed)
     mu, sd = inputs[train].mean(0), inputs[train].std(0) + 1e-9

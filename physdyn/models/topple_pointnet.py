@@ -34,7 +34,7 @@ SCALARS = 7  # step-0 velocity (3) and spin (3) in the travel frame, I_zz / m
 # velocity (along, across, up) changes sign as (+, -, +), the spin, an axial vector, as (-, +, -).
 MIRROR_SCALARS = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0, 1.0], dtype=np.float32)
 MIN_STEPS = 20  # training steps: the best of 20 validation checks is kept
-PUSHES_PER_PASS = 32  # pushes per forward pass at prediction (``_in_passes``)
+PUSHES_PER_PASS = 32  # pushes per forward pass at prediction (``_in_passes``; ``OutcomeCorrection.correction``)
 POINT_WIDTHS = (64, 128)  # the per-point layers' widths before the last (of ``width``): the per-push cost
 THINNED_KEPT = 256  # thinned clouds kept by a classifier or outcome correction, the latest (``thinned_clouds``)
 INERTIA_SHAPE_FACTOR = 0.8  # I_zz / m from a bare cloud: 0.8 x its mean squared horizontal radius (the contact prior's)
@@ -86,7 +86,7 @@ def numpy_layers(net: ToppleNet) -> tuple[list[tuple[np.ndarray, np.ndarray]], l
 
 def numpy_forward(layers: tuple[list, list], cloud: np.ndarray, scalars: np.ndarray) -> np.ndarray:
     """``ToppleNet.forward`` on numpy, float32, ``layers`` from ``numpy_layers``: (B, N, 3), (B, S) -> (B,
-    outputs). The same numbers to float32 rounding (a few 1e-7 of the outputs); for a small network torch's
+    outputs), (B, 1) for one output (``ToppleNet`` gives (B,)). The same numbers to float32 rounding (a few 1e-7 of the outputs); for a small network torch's
     per-call overhead is most of one push's cost (0.46 against 0.07 ms for ``fast``'s outcome correction)."""
     points, head = layers
     cloud = np.asarray(cloud, dtype=np.float32)
