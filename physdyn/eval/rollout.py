@@ -183,8 +183,8 @@ def rollout(
     the cloud).
     A model with an ``outcome_correction`` has the resting pose of each push that comes to rest without
     toppling corrected, the correction spread over its trajectory (``physdyn.models.outcome_correction``; one
-    fitted with ``--pointnet`` reads ``points_body`` thinned as its topple PointNet's, the cloud that classifier
-    thinned when it was given the same one);
+    fitted with ``--pointnet`` reads ``points_body`` thinned as its topple PointNet's, one thinning for both,
+    ``thinned_clouds``);
     ``lengths`` (B,): each sequence's own number of states (steps + 1) where a batch is padded to its longest,
     so that each is judged at its own end, as alone (``Predictor.predict_many`` passes them; without them
     every sequence is judged at the batch's horizon, as a request of that length: ``physdyn test`` on a store
@@ -243,12 +243,9 @@ def rollout(
     if topple or (steps == 0 and getattr(model, "predicts_topple", False)):
         probability = np.concatenate([np.zeros((B, 1)), np.stack(topple, axis=1) if topple else np.zeros((B, 0))], axis=1)
     classifier = getattr(model, "topple_classifier", None)
-    thinned = None  # (how, cloud): the classifier's thinned cloud, which a PointNet correction thinned alike reads too
     if classifier is not None:
         if getattr(classifier, "thinned_from", 0):  # a PointNet fitted on thinned clouds thins what it is given
             cloud = _oriented(classifier.body_clouds(_numpy(points_body if topple_points_body is None else topple_points_body)), q0)
-            if topple_points_body is None or np.array_equal(_numpy(topple_points_body), _numpy(points_body)):  # predict_many gives both
-                thinned = ((classifier.num_points, classifier.thinned_from), cloud)
         else:
             cloud = points if topple_points_body is None else _oriented(_numpy(topple_points_body), q0)
         probability = classifier.predict(cloud, _numpy(lin_vel0).reshape(B, 3), _numpy(ang_vel0).reshape(B, 3), steps,
@@ -270,11 +267,8 @@ def rollout(
     if correction is not None:  # fit-outcome: where the push ends, learned
         from physdyn.models.outcome_correction import correct_rollout  # torch: only for models that have one
 
-        clouds = None
-        if getattr(correction, "num_points", 0):  # a PointNet correction (fit-outcome --pointnet) reads the cloud
-            how = (correction.num_points, correction.thinned_from)
-            clouds = thinned[1] if thinned is not None and thinned[0] == how else _oriented(
-                correction.body_clouds(_numpy(points_body)), q0)
+        # a PointNet correction (fit-outcome --pointnet) reads the cloud, thinned as the classifier's (one thinning)
+        clouds = _oriented(correction.body_clouds(_numpy(points_body)), q0) if getattr(correction, "num_points", 0) else None
         states = {**states, **{k: np.array(v) for k, v in deltas.items()}}
         correct_rollout(model, states, _numpy(lin_vel0).reshape(B, 3), _numpy(ang_vel0).reshape(B, 3), given_spin_inertia,
                         points, toppled, lengths, clouds)

@@ -103,7 +103,6 @@ class OutcomeCorrection:
     point_widths: tuple[int, ...] = POINT_WIDTHS
     _layers: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list, repr=False, compare=False)
     _pointnets: list[tuple[list, list]] = field(default_factory=list, repr=False, compare=False)
-    _thinned: dict[bytes, np.ndarray] = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.num_points:
@@ -129,7 +128,7 @@ class OutcomeCorrection:
         if given != (self.thinned_from or self.num_points):
             raise ValueError(f"this outcome correction was fitted on hull_surface clouds of {self.thinned_from or self.num_points} "
                              f"points and is given {given}: give it clouds of the size its model reads")
-        return thinned_clouds(points_body, self.num_points if self.thinned_from else 0, self._thinned)
+        return thinned_clouds(points_body, self.num_points if self.thinned_from else 0)
 
     def correction(self, inputs: np.ndarray, clouds: np.ndarray | None = None) -> np.ndarray:
         """Raw inputs (B, 13) -> (B, 3): the displacement along and across the travel (m) and the turn

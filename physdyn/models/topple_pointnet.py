@@ -36,7 +36,7 @@ MIRROR_SCALARS = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0, 1.0], dtype=np.float
 MIN_STEPS = 20  # training steps: the best of 20 validation checks is kept
 PUSHES_PER_PASS = 32  # pushes per forward pass at prediction (``_in_passes``; ``OutcomeCorrection.correction``)
 POINT_WIDTHS = (64, 128)  # the per-point layers' widths before the last (of ``width``): the per-push cost
-THINNED_KEPT = 256  # thinned clouds kept by a classifier or outcome correction, the latest (``thinned_clouds``)
+THINNED_KEPT = 256  # thinned clouds the process keeps, the latest (``thinned_clouds``)
 INERTIA_SHAPE_FACTOR = 0.8  # I_zz / m from a bare cloud: 0.8 x its mean squared horizontal radius (the contact prior's)
 
 
@@ -104,9 +104,14 @@ def numpy_forward(layers: tuple[list, list], cloud: np.ndarray, scalars: np.ndar
     return h
 
 
-def thinned_clouds(points_body: np.ndarray, count: int, cache: dict[bytes, np.ndarray]) -> np.ndarray:
+_THINNED: dict[tuple[int, bytes], np.ndarray] = {}  # (count, body-frame cloud) -> its thinned cloud, the latest
+
+
+def thinned_clouds(points_body: np.ndarray, count: int) -> np.ndarray:
     """(B, count, 3) float32: each body-frame cloud of (B, N, 3) thinned by ``thin_hull_surface``, each distinct
-    cloud once (``cache``, the latest THINNED_KEPT); as given where ``count`` is 0 or not below N."""
+    cloud once in the process: a batch of one object's pushes repeats one cloud hundreds of times, and the
+    topple PointNet and a PointNet outcome correction that thin alike read one thinning (the latest
+    THINNED_KEPT kept; ``forget_thinned``). As given where ``count`` is 0 or not below N."""
     points_body = np.asarray(points_body, dtype=np.float32)
     if not count or points_body.shape[1] <= count:
         return points_body
@@ -114,13 +119,19 @@ def thinned_clouds(points_body: np.ndarray, count: int, cache: dict[bytes, np.nd
 
     out = np.empty((len(points_body), count, 3), dtype=np.float32)
     for b, cloud in enumerate(points_body):
-        key = cloud.tobytes()
-        if key not in cache:
-            if len(cache) >= THINNED_KEPT:
-                cache.pop(next(iter(cache)))  # the oldest
-            cache[key] = thin_hull_surface(cloud, count)
-        out[b] = cache[key]
+        key = (count, cloud.tobytes())
+        if key not in _THINNED:
+            if len(_THINNED) >= THINNED_KEPT:
+                _THINNED.pop(next(iter(_THINNED)))  # the oldest
+            _THINNED[key] = thin_hull_surface(cloud, count)
+        out[b] = _THINNED[key]
     return out
+
+
+def forget_thinned() -> None:
+    """Drop every thinned cloud kept (``thinned_clouds``): a benchmark of meshes new to physdyn must pay for
+    thinning theirs (``Predictor.forget_meshes``)."""
+    _THINNED.clear()
 
 
 def travel_turn(linear_velocity: np.ndarray) -> np.ndarray:
@@ -163,7 +174,6 @@ class PointNetToppleClassifier:
     thinned_from: int = 0  # > 0: it reads hull_surface clouds of this size thinned to num_points (``body_clouds``)
     physics: bool = False  # it simulates nothing (Predictor.without_simulator keeps it)
     _modules: list[ToppleNet] = field(default_factory=list, repr=False, compare=False)
-    _thinned: dict[bytes, np.ndarray] = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self._modules = []
@@ -191,7 +201,7 @@ class PointNetToppleClassifier:
         --num-points``; given its ``thinned_from``-point clouds), else as they are. Thinned before a push
         turns them (from the body frame's lowest hull vertex, as its training clouds were), each distinct
         cloud once: a batch of one object's pushes repeats one cloud hundreds of times."""
-        return thinned_clouds(points_body, self.num_points if self.thinned_from else 0, self._thinned)
+        return thinned_clouds(points_body, self.num_points if self.thinned_from else 0)
 
     def per_step(self, probability: np.ndarray, steps: int) -> np.ndarray:
         """(B,) -> (B, steps + 1): the probability of having toppled by step t (0 at step 0)."""

@@ -34,6 +34,7 @@ from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_ro
 from physdyn.models.checkpoint_file import SHIPPED
 from physdyn.models.dynamics_module import DynamicsModel
 from physdyn.models.topple_classifier import given_points
+from physdyn.models.topple_pointnet import forget_thinned
 from physdyn.models.training import load_experiment_config
 from physdyn.predict.body import PreparedBody, preparation_key, prepare_body
 from physdyn.predict.simulator import SIMULATOR_NAME, simulate_from_state
@@ -279,10 +280,11 @@ class Predictor:
         return results  # type: ignore[return-value]
 
     def forget_meshes(self) -> None:
-        """Forget every mesh prepared so far (this predictor's preparations and the process's cloud bodies),
-        so the next request pays for its preparation as a new mesh does (benchmarks/frontier.py)."""
+        """Forget every mesh prepared so far (this predictor's preparations, the process's cloud bodies and
+        thinned clouds), so the next request pays for its preparation as a new mesh does (benchmarks/frontier.py)."""
         self._prepared.clear()
         forget_clouds()
+        forget_thinned()
 
     def without_simulator(self) -> "Predictor":
         """This predictor's networks with nothing simulated at inference: no simulated start
