@@ -111,6 +111,15 @@ def _shapes(baseline: Baseline, store: StoreData, sims: np.ndarray) -> dict[str,
             "inertia_per_mass": store_world_inertia(store, sims, np.tile([0.0, 0.0, 0.0, 1.0], (len(shapes), 1)))}
 
 
+def _check_store_clouds(store: StoreData, reader: str, method: str, size: int) -> None:
+    """One line and no roll-out where the checkpoint's ``reader`` reads ``method`` clouds of ``size`` points and
+    ``store`` holds others."""
+    if store.points_method != method or store.points.shape[1] != size:
+        raise PhysdynError(f"the checkpoint's {reader} reads {method} clouds of {size} points and {store.url} holds "
+                           f"{store.points_method} ones of {store.points.shape[1]}; test it on a store made with "
+                           f"points_method: {method}, num_points: {size}")
+
+
 def predict_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, truth: dict[str, np.ndarray], warm_start: int = 0,
                      batch_size: int = 256, seed: int = 0) -> RolloutResult:
     """Roll ``predictor`` out over ``sims`` for the horizon of ``truth`` (from ``gather_truth``)."""
@@ -119,16 +128,12 @@ def predict_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, truth: 
     classifier = getattr(predictor, "topple_classifier", None)
     wants = getattr(classifier, "points_method", None)  # a PointNet reads its kind of cloud, given whole (thinned by it)
     held = None if classifier is None else given_points(classifier)
-    if wants is not None and (wants != store.points_method or store.points.shape[1] != held):
-        raise PhysdynError(f"the checkpoint's topple classifier reads {wants} clouds of {held} points "
-                           f"and {store.url} holds {store.points_method} ones of {store.points.shape[1]}; test it on a "
-                           f"store made with points_method: {wants}, num_points: {held}")
+    if wants is not None:
+        _check_store_clouds(store, "topple classifier", wants, held)
     correction = getattr(predictor, "outcome_correction", None)
-    reads = getattr(correction, "num_points", 0) and (correction.thinned_from or correction.num_points)
-    if reads and (store.points.shape[1] != reads or (correction.thinned_from and store.points_method != "hull_surface")):
-        raise PhysdynError(f"the checkpoint's outcome correction reads hull_surface clouds of {reads} points and {store.url} "
-                           f"holds {store.points_method} ones of {store.points.shape[1]}; test it on a store made with "
-                           f"points_method: hull_surface, num_points: {reads}")
+    if getattr(correction, "num_points", 0):  # a PointNet correction (fit-outcome --pointnet): its size; thinning, hull_surface
+        _check_store_clouds(store, "outcome correction", "hull_surface" if correction.thinned_from else store.points_method,
+                            correction.thinned_from or correction.num_points)
     model_reads = str(getattr(predictor, "data_info", {}).get("points_method") or "surface")
     if wants is not None and model_reads != wants:  # one store cannot feed both: the model would get the wrong kind
         raise PhysdynError(f"the model reads {model_reads} clouds and its topple classifier {wants} ones; a store holds "

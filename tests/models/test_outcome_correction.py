@@ -291,6 +291,12 @@ def test_fit_outcome_writes_a_checkpoint_that_predicts_with_no_simulator(tiny_hu
                  "--pointnet", "--num-points", "16", "--widths", "8", "16", "32", "--steps", "40", "--batch", "32"]) == 0
     read = load_predictor(str(with_cloud)).model.outcome_correction
     assert (read.num_points, read.thinned_from, tuple(read.point_widths), read.width) == (16, 64, (8, 16), 32)
+    # tested on a store of clouds it cannot read: one line naming both, nothing written
+    capsys.readouterr()
+    assert main(["test", "--checkpoint", str(with_cloud), "--data", tiny_store, "--out", str(tmp_path / "report")]) == 2
+    err = capsys.readouterr().err
+    assert "outcome correction reads hull_surface clouds of 64 points" in err and "holds surface ones" in err, err
+    assert not (tmp_path / "report").exists()
     # bad input: one line, exit 2, nothing written
     assert main(args) == 2
     err = capsys.readouterr().err
