@@ -346,6 +346,12 @@ def test_the_shipped_fast_model_simulates_nothing_and_a_file_of_its_name_comes_f
     assert (model.topple_classifier.num_points, model.topple_classifier.thinned_from) == (64, 256)
     box = trimesh.creation.box((0.1, 0.06, 0.04))
     predictor.predict(box.copy(), [0.5, 0.0, 0.0], [0.0, 0.0, 0.0], seconds=0.2)  # imports done, mesh prepared
+    # a mesh forgotten is new again: its thinned cloud too (benchmarks/frontier.py times its thinning)
+    from physdyn.models import topple_pointnet
+
+    assert any(key[0] == 64 for key in topple_pointnet._THINNED)
+    predictor.forget_meshes()
+    assert not topple_pointnet._THINNED
     refuse_pybullet(monkeypatch)
     v0, w0 = np.array([0.8, 0.1, 0.0]), np.array([0.0, 0.0, 3.0])
     mine = predictor.predict(box, v0, w0, seconds=2.0)
@@ -375,12 +381,6 @@ def test_the_shipped_fast_model_simulates_nothing_and_a_file_of_its_name_comes_f
     both = predictor.predict_many([box, box], [v0, v0], [w0, w0], seconds=[0.3, 2.0])
     np.testing.assert_allclose(both[0]["com_position"], short["com_position"], atol=1e-6)
     np.testing.assert_allclose(both[1]["com_position"], mine["com_position"], atol=1e-6)
-    # a mesh forgotten is new again: its thinned cloud too (benchmarks/frontier.py times its thinning)
-    from physdyn.models import topple_pointnet
-
-    assert any(key[0] == 64 for key in topple_pointnet._THINNED)
-    predictor.forget_meshes()
-    assert not topple_pointnet._THINNED
     # a file called "fast" where the user is wins over the shipped model's name; a folder of that name does not
     monkeypatch.chdir(tmp_path)
     (tmp_path / "fast").mkdir()
