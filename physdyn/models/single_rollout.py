@@ -194,11 +194,20 @@ class SingleRollout:
         fed = np.empty((steps, 6))
         topple = np.empty(steps) if self.predicts_topple and topple else None
         tracks_turn = self.nets[0].varying > 6
+        # With no recurrent state (the prior alone) a step is a function of the state it is fed: once that
+        # repeats exactly (at rest, a quarter of the frontier's steps), every later step repeats it
+        stateless = topple is None and not any(net.layers for net in self.nets)
+        previous = None
         for t in range(steps):
             if 1 <= t <= K:
                 v, w = [float(x) for x in warm_v[t - 1]], [float(x) for x in warm_w[t - 1]]
                 if warm_turn is not None:
                     turn = tuple(float(x) for x in warm_turn[t - 1])
+            if stateless and t > K:
+                if (v, w, turn) == previous:
+                    changes[t:], fed[t:] = changes[t - 1], fed[t - 1]
+                    break
+                previous = (v, w, turn)
             fed[t, :3], fed[t, 3:] = v, w
             vw32 = np.array(v + w, np.float32)  # the module is fed float32
             q32 = np.array(turn, np.float32).tolist() if tracks_turn else None

@@ -23,6 +23,7 @@ from typing import Any, Callable
 
 import numpy as np
 import torch
+from scipy.special import expit
 
 from physdyn.geometry.rotations import quat_to_matrix
 from physdyn.models.topple_classifier import per_step_probability, topple_timing
@@ -35,6 +36,10 @@ SCALARS = 7  # step-0 velocity (3) and spin (3) in the travel frame, I_zz / m
 MIRROR_SCALARS = np.array([1.0, -1.0, 1.0, -1.0, 1.0, -1.0, 1.0], dtype=np.float32)
 MIN_STEPS = 20  # training steps: the best of 20 validation checks is kept
 PUSHES_PER_PASS = 32  # pushes per forward pass at prediction (``_in_passes``; ``OutcomeCorrection.correction``)
+# Up to this many pushes the topple PointNet runs on numpy (``numpy_forward``), above it on torch: for one push
+# torch's per-layer dispatch is most of the cost (0.30 against 0.14 ms a push), for hundreds its products are
+# the cheaper (0.09 against 0.10-0.23 ms; docs/performance.md, nineteenth session)
+NUMPY_PUSHES = 8
 POINT_WIDTHS = (64, 128)  # the per-point layers' widths before the last (of ``width``): the per-push cost
 THINNED_KEPT = 256  # thinned clouds the process keeps, the latest (``thinned_clouds``)
 INERTIA_SHAPE_FACTOR = 0.8  # I_zz / m from a bare cloud: 0.8 x its mean squared horizontal radius (the contact prior's)
@@ -174,6 +179,7 @@ class PointNetToppleClassifier:
     thinned_from: int = 0  # > 0: it reads hull_surface clouds of this size thinned to num_points (``body_clouds``)
     physics: bool = False  # it simulates nothing (Predictor.without_simulator keeps it)
     _modules: list[ToppleNet] = field(default_factory=list, repr=False, compare=False)
+    _layers: list[tuple[list, list]] = field(default_factory=list, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self._modules = []
@@ -181,16 +187,20 @@ class PointNetToppleClassifier:
             net = ToppleNet(self.width, point_widths=tuple(self.point_widths))
             net.load_state_dict(state)
             self._modules.append(net.eval())
+        self._layers = [numpy_layers(net) for net in self._modules]
 
     def probability(self, points_world: np.ndarray, linear_velocity: np.ndarray, angular_velocity: np.ndarray,
                     spin_inertia: np.ndarray) -> np.ndarray:
         """(B,) probability that each push topples: clouds (B, N, 3) turned to step 0, centred at the centre
         of mass; step-0 velocities (B, 3); I_zz / m (B,)."""
         turn = travel_turn(linear_velocity)
-        cloud = torch.tensor(np.einsum("bij,bnj->bni", turn, np.asarray(points_world, dtype=np.float64)),
-                             dtype=torch.float32)
-        raw = travel_scalars(linear_velocity, angular_velocity, spin_inertia, turn)
-        scalars = torch.tensor((raw - self.scalars_mean) / self.scalars_std, dtype=torch.float32)
+        travelled = np.einsum("bij,bnj->bni", turn, np.asarray(points_world, dtype=np.float64))
+        standard = (travel_scalars(linear_velocity, angular_velocity, spin_inertia, turn) - self.scalars_mean) / self.scalars_std
+        if len(travelled) <= NUMPY_PUSHES:  # the same network on numpy (float32 rounding apart)
+            return np.mean([expit(numpy_forward(layers, travelled, standard)[:, 0]) for layers in self._layers],
+                           axis=0).astype(np.float64)
+        cloud = torch.tensor(travelled, dtype=torch.float32)
+        scalars = torch.tensor(standard, dtype=torch.float32)
         with torch.no_grad():
             return np.mean([torch.sigmoid(_in_passes(net, cloud, scalars)).numpy() for net in self._modules],
                            axis=0).astype(np.float64)

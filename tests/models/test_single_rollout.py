@@ -190,3 +190,31 @@ def test_a_batch_runs_the_network_on_moving_sequences_only_and_gives_the_same_ro
     # a time, then all three run
     assert calls[:5] == [(2, 1), (2, 1), (1, 1), (1, 1), (3, 1)]
     assert len(calls) < 40 and sum(b for b, _ in calls) < 3 * 40 / 2  # steps with all at rest run nothing
+
+
+def test_the_prior_alone_repeats_its_state_at_rest_as_the_torch_loop_steps_it(quickstart_config, store, monkeypatch):
+    # The prior alone has no recurrent state: once a step is fed the state of the step before, the roll-out
+    # repeats it to its end instead of stepping (SingleRollout.run); the torch loop steps every one.
+    from physdyn.models import single_rollout
+
+    model = _model(quickstart_config, store, RECIPES[-1])
+    with torch.no_grad():  # as contact_prior_predictor: no residual (a constant one would never let it rest)
+        model.head.linear.weight.zero_()
+        model.head.linear.bias.zero_()
+    stepped = []
+    step = single_rollout._Network.step
+    monkeypatch.setattr(single_rollout._Network, "step", lambda self, *a, **k: stepped.append(1) or step(self, *a, **k))
+    repeated = 0
+    for sim in select_sequences(store, "test"):
+        points, v0, w0, _ = _first_state(store, sim)
+        stepped.clear()
+        fast = model.rollout_changes(points, v0, w0, 150, None, None, topple=False)
+        with torch.inference_mode():
+            slow = batch_rollout(model, points, v0, w0, 150, None, None)
+        for key in ("changes", "fed"):
+            np.testing.assert_allclose(fast[key].numpy(), slow[key].numpy(), rtol=1e-5, atol=1e-5, err_msg=key)
+        fed = fast["fed"][0].numpy()
+        if len(stepped) < 150:  # it stopped stepping: from there on each step repeats the one before, to the bit
+            repeated += 1
+            assert (fed[len(stepped):] == fed[len(stepped) - 1]).all() and np.abs(fed[0, :3]).max() > 0.1
+    assert repeated >= 3  # most pushes' states settle exactly (some keep a 1e-45 m/s flicker, and are stepped)

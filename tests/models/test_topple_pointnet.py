@@ -174,6 +174,21 @@ def test_many_pushes_go_through_the_network_a_few_at_a_time_with_the_same_number
         assert len(in_passes) == count
 
 
+def test_a_few_pushes_run_on_numpy_with_the_torch_networks_numbers(fitted, monkeypatch):
+    import physdyn.models.topple_pointnet as topple_pointnet
+
+    store, classifier, _ = fitted
+    first = stores_first_frames([store])
+    for count in (1, 5, topple_pointnet.NUMPY_PUSHES):  # numpy; the same pushes through torch below
+        args = (first["points"][:count], first["v0"][:count], first["w0"][:count], first["spin"][:count])
+        on_numpy = classifier.probability(*args)
+        monkeypatch.setattr(topple_pointnet, "NUMPY_PUSHES", 0)
+        on_torch = classifier.probability(*args)
+        monkeypatch.setattr(topple_pointnet, "NUMPY_PUSHES", 8)
+        assert on_numpy.shape == on_torch.shape == (count,) and on_numpy.dtype == np.float64
+        np.testing.assert_allclose(on_numpy, on_torch, rtol=0, atol=1e-6)
+
+
 def test_fitted_on_thinned_clouds_it_reads_them_thinned_in_fitting_testing_and_prediction(hull_store, tmp_path,
                                                                                            monkeypatch):
     from physdyn.cli.fit_topple import write_with_classifier
