@@ -97,6 +97,10 @@ class _Network:
         self.h = [np.zeros(self.hidden, np.float32) for _ in self.layers]
         self.c = [np.zeros(self.hidden, np.float32) for _ in self.layers]
         self.queued: list[np.ndarray] = []
+        # With no layer the head reads empty features: its output is its bias at every step, computed once
+        # as a step computes it (the prior alone: nothing fed to a network, nothing queued)
+        self.bias_out = None if self.layers else np.zeros(0, np.float32) @ self.head_weight + self.head_bias
+        self.bias_step = None if self.layers else self.bias_out[:12] * self.residual_mask
 
     def prior_key(self) -> tuple:
         return (self.prior, self.uses_shape_prior, tuple(self.geometry), self.prior_args, self.substeps)
@@ -118,13 +122,15 @@ class _Network:
         (12,) float64, the head's topple probability or None, the prior's changes SI float32 or None).
         ``prior``: the prior's changes when another network computed the same ones."""
         v32, w32 = vw32[:3].tolist(), vw32[3:].tolist()
-        x = (vw32 - self.velocity_shift) / self.velocity_scale
-        if self.varying > 6:
-            x = np.concatenate([x, np.array(_rotation_6d(*q32), np.float32)])
         moving = not self.gated or (math.hypot(v32[0], v32[1]) > self.gate_linear
                                     or math.sqrt(w32[0] ** 2 + w32[1] ** 2 + w32[2] ** 2) > self.gate_angular)
         probability = None
-        if moving or topple:
+        if self.bias_out is not None:  # no network to feed
+            step = self.bias_step if moving else np.zeros(12, np.float32)
+            if topple:
+                probability = 1.0 / (1.0 + math.exp(-float(self.bias_out[12])))
+        elif moving or topple:
+            x = self._input(vw32, q32)
             for queued_x in self.queued:
                 self._lstm(queued_x)
             self.queued.clear()
@@ -133,13 +139,20 @@ class _Network:
             if topple:
                 probability = 1.0 / (1.0 + math.exp(-float(out[12])))
         else:  # below the rest gate: the input waits for the next step that needs the network
-            self.queued.append(x)
+            self.queued.append(self._input(vw32, q32))
             step = np.zeros(12, np.float32)
         if self.prior != "none":
             if prior is None:
                 prior = self._prior(v32, w32, q32)
             step = step + (prior - self.change_shift32) / self.change_scale32
         return step.astype(np.float64) * self.change_scale + self.change_shift, probability, prior
+
+    def _input(self, vw32: np.ndarray, q32: list[float] | None) -> np.ndarray:
+        """The network's input at a step: the velocities fed, standardised, and the orientation's 6D form."""
+        x = (vw32 - self.velocity_shift) / self.velocity_scale
+        if self.varying > 6:
+            x = np.concatenate([x, np.array(_rotation_6d(*q32), np.float32)])
+        return x
 
     def _prior(self, v32: list[float], w32: list[float], q32: list[float] | None) -> np.ndarray:
         if self.uses_shape_prior:
