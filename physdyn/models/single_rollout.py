@@ -101,6 +101,11 @@ class _Network:
         # as a step computes it (the prior alone: nothing fed to a network, nothing queued)
         self.bias_out = None if self.layers else np.zeros(0, np.float32) @ self.head_weight + self.head_bias
         self.bias_step = None if self.layers else self.bias_out[:12] * self.residual_mask
+        # ... and where that output is zero and the changes are not scaled (contact_prior_predictor, `fast`), a
+        # step's changes are the prior's, float32 as the sum would round them (zeros' signs apart)
+        self.prior_only = (self.bias_step is not None and self.prior != "none" and not self.bias_step.any()
+                           and not self.change_shift.any() and (self.change_scale == 1.0).all()
+                           and not self.change_shift32.any() and (self.change_scale32 == 1.0).all())
 
     def prior_key(self) -> tuple:
         return (self.prior, self.uses_shape_prior, tuple(self.geometry), self.prior_args, self.substeps)
@@ -125,6 +130,9 @@ class _Network:
         moving = not self.gated or (math.hypot(v32[0], v32[1]) > self.gate_linear
                                     or math.sqrt(w32[0] ** 2 + w32[1] ** 2 + w32[2] ** 2) > self.gate_angular)
         probability = None
+        if self.prior_only and not topple:
+            prior = self._prior(v32, w32, q32) if prior is None else prior
+            return prior.astype(np.float64), None, prior
         if self.bias_out is not None:  # no network to feed
             step = self.bias_step if moving else np.zeros(12, np.float32)
             if topple:
