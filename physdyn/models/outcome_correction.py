@@ -188,18 +188,19 @@ class OutcomeCorrection:
             clouds = None if not self.num_points else np.einsum("bij,bnj->bni", turn, np.asarray(clouds_world)[idx])
             fix = self.correction(inputs, clouds)
             shift = fix[:, 0:1] * turn[:, 0, :2] + fix[:, 1:2] * turn[:, 1, :2]  # (b, 2) world, horizontal
+            b = len(idx)
             moved = np.linalg.norm(np.diff(p[idx, :L, :2], axis=1), axis=-1)
             turns = np.abs(wrap_angle(np.diff(yaw_of(quat_multiply(q[idx, :L], quat_conjugate(q[idx, :1]))), axis=1)))
+            # the path's progress (rows :b) and the turn's (rows b:), each falling back on the other, in one pass:
             # its own L steps as alone; past its own end, the whole correction and no change of velocity
-            whole, still = np.ones((len(idx), T - L)), np.zeros((len(idx), T - L))
-            own_along, own_turned = _progress(moved, turns), _progress(turns, moved)
-            along = np.concatenate([own_along, whole], axis=1)
-            turned = np.concatenate([own_turned, whole], axis=1)
-            p[idx, :, :2] += along[..., None] * shift[:, None, :]
-            v[idx, :, :2] += np.concatenate([_rate(own_along, dt), still], axis=1)[..., None] * shift[:, None, :]
-            spin = turned * fix[:, 2:3]  # (b, T) radians about the world vertical through the centre of mass
+            own = _progress(np.concatenate([moved, turns]), np.concatenate([turns, moved]))
+            fraction = np.concatenate([own, np.ones((2 * b, T - L))], axis=1)
+            rate = np.concatenate([_rate(own, dt), np.zeros((2 * b, T - L))], axis=1)
+            p[idx, :, :2] += fraction[:b, :, None] * shift[:, None, :]
+            v[idx, :, :2] += rate[:b, :, None] * shift[:, None, :]
+            spin = fraction[b:] * fix[:, 2:3]  # (b, T) radians about the world vertical through the centre of mass
             q[idx] = quat_multiply(rotvec_to_quat(spin[..., None] * np.array([0.0, 0.0, 1.0])), q[idx])
-            w[idx, :, 2] += np.concatenate([_rate(own_turned, dt), still], axis=1) * fix[:, 2:3]
+            w[idx, :, 2] += rate[b:] * fix[:, 2:3]
         return corrected
 
     def to_dict(self) -> dict[str, Any]:

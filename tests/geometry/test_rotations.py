@@ -1,5 +1,6 @@
 """The quaternion maths every roll-out and training batch uses, against SciPy's rotations, for the shapes the
-callers pass: one quaternion, a batch, a batch of sequences, and one broadcast against many."""
+callers pass: one quaternion, a batch, a batch of sequences, and one broadcast against many; a few
+quaternions and many take two ways through the code (``GATHERED_AT_MOST``), which give the same bits."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_matrix
 
 
-@pytest.mark.parametrize("shape", [(4,), (1, 4), (6, 4), (2, 5, 4), (0, 4)])
+@pytest.mark.parametrize("shape", [(4,), (1, 4), (6, 4), (2, 5, 4), (0, 4), (300, 4), (3, 100, 4)])  # both ways
 def test_quat_to_matrix_is_scipys_rotation_matrix_of_the_normalised_quaternion(shape):
     q = np.random.default_rng(0).normal(size=shape) * 3.0  # not unit: it normalises
     m = quat_to_matrix(q)
@@ -19,7 +20,7 @@ def test_quat_to_matrix_is_scipys_rotation_matrix_of_the_normalised_quaternion(s
     np.testing.assert_allclose(m, expected, atol=1e-12)
 
 
-@pytest.mark.parametrize("shapes", [((4,), (4,)), ((7, 4), (7, 4)), ((1, 4), (9, 4)), ((3, 1, 4), (3, 5, 4)), ((4,), (2, 3, 4))])
+@pytest.mark.parametrize("shapes", [((4,), (4,)), ((7, 4), (7, 4)), ((1, 4), (9, 4)), ((3, 1, 4), (3, 5, 4)), ((4,), (2, 3, 4)), ((300, 4), (300, 4)), ((1, 4), (3, 100, 4))])
 def test_quat_multiply_composes_rotations_as_scipy_does(shapes):
     rng = np.random.default_rng(1)
     a, b = (q / np.linalg.norm(q, axis=-1, keepdims=True) for q in (rng.normal(size=s) for s in shapes))
@@ -31,3 +32,15 @@ def test_quat_multiply_composes_rotations_as_scipy_does(shapes):
     np.testing.assert_allclose(quat_to_matrix(product), quat_to_matrix(expected), atol=1e-12)
     # a rotation and its inverse compose to the identity
     np.testing.assert_allclose(quat_multiply(a, quat_conjugate(a)), np.broadcast_to([0.0, 0.0, 0.0, 1.0], a.shape), atol=1e-15)
+
+
+def test_a_few_quaternions_and_many_give_the_same_bits():
+    from physdyn.geometry.rotations import GATHERED_AT_MOST
+
+    rng = np.random.default_rng(2)
+    a, b = rng.normal(size=(2 * GATHERED_AT_MOST, 4)), rng.normal(size=(2 * GATHERED_AT_MOST, 4))
+    b[:5] = 0.0  # zeros, whose signs the products keep
+    many, few = quat_multiply(a, b), np.concatenate([quat_multiply(a[i : i + 7], b[i : i + 7]) for i in range(0, len(a), 7)])
+    assert np.array_equal(many, few) and np.array_equal(np.signbit(many), np.signbit(few))
+    many, few = quat_to_matrix(a), np.concatenate([quat_to_matrix(a[i : i + 7]) for i in range(0, len(a), 7)])
+    assert np.array_equal(many, few)
