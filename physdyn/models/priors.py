@@ -125,15 +125,18 @@ def _contact_geometry_one(points: torch.Tensor) -> torch.Tensor:
     z = p[:, 2]
     zmin = z.min()
     touching = z <= zmin + np.float32(SUPPORT_DEPTH)
-    xy = p[:, :2]
-    radius2 = (xy ** 2).sum(-1)
-    distance = np.where(touching, np.float32(np.inf), np.float32(-1.0))
-    pick = int(np.argmax(np.where(touching, radius2, np.float32(-1.0))))
+    # Only the touching points (a few of the cloud) take part: the others' distance is -1, below any touching
+    # one's (>= 0), so the picks, the first of equals included, are those over the whole cloud. None touches
+    # only in a cloud with no finite lowest point: then the whole-cloud loop picks point 0 four times, as this.
+    touch = np.flatnonzero(touching) if touching.any() else np.zeros(1, dtype=np.int64)
+    xy = p[touch, :2]
+    distance = np.full(len(touch), np.float32(np.inf))
+    pick = int(np.argmax((xy ** 2).sum(-1)))
     chosen, fresh = [], []
     for i in range(min(SUPPORT_POINTS, len(p))):
-        chosen.append(pick)
+        chosen.append(int(touch[pick]))
         fresh.append(bool(distance[pick] > 0) if i else True)  # repeats weigh nothing
-        distance = np.minimum(distance, np.where(touching, ((xy - xy[pick]) ** 2).sum(-1), np.float32(-1.0)))
+        distance = np.minimum(distance, ((xy - xy[pick]) ** 2).sum(-1))
         pick = int(np.argmax(distance))
     weights = np.array(fresh, dtype=np.float32)
     weights = weights / weights.sum(dtype=np.float32)

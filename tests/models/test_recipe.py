@@ -430,6 +430,10 @@ def test_one_clouds_footprint_on_numpy_equals_the_batched_one_to_the_bit():
         batch = contact_geometry(clouds)
         for i in range(3):
             assert torch.equal(contact_geometry(clouds[i : i + 1]), batch[i : i + 1])
+    # a cloud a caller did not check (no finite lowest point): the same numbers, NaNs where the batch has them
+    bad = torch.randn(2, 64, 3, generator=g) * 0.05
+    bad[1, 5, 2] = float("nan")
+    torch.testing.assert_close(contact_geometry(bad[1:]), contact_geometry(bad)[1:], rtol=0, atol=0, equal_nan=True)
 
 
 def test_the_area_footprint_finds_a_rectangles_four_corners_where_spreading_misses_some():
