@@ -30,11 +30,12 @@ Two regimes:
     run; per mesh the body (``prepare_body``: cleaning, hull, mass properties; then its collision shape) is
     built inside the timing, once, and pushed from each step-0 state (velocities set directly, as
     ``simulate_from_state`` does); its cost per request is that build plus one roll-out. The steps take
-    turns mesh by mesh and the predictors request by request, so the shared machine's load falls on all
-    alike; costs are CPU time. ``--repeats N`` times every timed piece N times in a row (a fresh mesh and
-    emptied caches each time) and keeps its fastest: it removes a request's stalls, not the shared machine's
-    drift between the run's phases (PyBullet's rows are timed before physdyn's; two runs of the best of five
-    12 minutes apart timed PyBullet 1/120 s at 6.10 and 7.35 ms): compare ratios within a run
+    turns mesh by mesh, and after each mesh's turn physdyn's predictors predict that mesh's requests one at
+    a time, request by request, so the shared machine's load and its drift over the run fall on all alike
+    (before the nineteenth session PyBullet's rows were all timed before physdyn's, and two runs of the same
+    code put `fast` at 0.88x and 1.15x of 1/120 s); costs are CPU time. ``--repeats N`` times every timed
+    piece N times in a row (a fresh mesh and emptied caches each time) and keeps its fastest: it removes a
+    request's stalls. The batched rows and the ceilings are timed after: compare ratios within a run
     (docs/ablations.md, "A cheaper fast").
 (b) many pushes of one mesh: ``--one-meshes`` meshes of each set, ``--one-mesh-pushes`` simulated pushes
     each, a ``--one-mesh-seconds`` horizon. physdyn: one ``predict_many`` per mesh on one mesh object
@@ -147,14 +148,18 @@ def roll_out(world: PhysicsWorld, spec: Any, shape: int, req: Requests, r: int, 
 
 
 def pybullet_rows(worlds: dict[int, PhysicsWorld], meshes: dict[str, trimesh.Trimesh], req: Requests, rate_hz: float,
-                  new_mesh_each: bool, repeats: int = 1) -> dict[int, Outcome]:
+                  new_mesh_each: bool, repeats: int = 1,
+                  after_mesh: Callable[[np.ndarray], Any] = lambda idx: None) -> dict[int, Outcome]:
     """PyBullet on each mesh's convex hull with its exact mass properties, at each world's step. The body
     (``prepare_body`` on a fresh copy, then its collision shape) is built inside the timing, once per mesh
     and step. Cost per trajectory: with ``new_mesh_each`` (regime a) a build and a roll-out, every request
     being a new mesh; else (regime b) the builds spread over all the pushes. The steps take turns mesh by
     mesh, so a change in the shared machine's load falls on all of them alike; a build, the same work at
     every step, costs the median of its five timings (a stall of the machine is not the body's). With
-    ``repeats`` each build and each roll-out is timed that many times, its fastest kept."""
+    ``repeats`` each build and each roll-out is timed that many times, its fastest kept. ``after_mesh(idx)``
+    runs after each mesh's turn with its requests' indices: regime (a) times physdyn there, so that the
+    machine's drift over a run falls on PyBullet and physdyn alike (one phase after the other, the ratio to
+    1/120 s moved by 0.88 -> 1.15 between two runs of the same code)."""
     outs = {hz: Outcome.empty(len(req)) for hz in worlds}
     rollouts = dict.fromkeys(worlds, 0.0)
     build = 0.0
@@ -171,6 +176,7 @@ def pybullet_rows(worlds: dict[int, PhysicsWorld], meshes: dict[str, trimesh.Tri
                 rollouts[hz] += best_of(repeats, lambda _: roll_out(world, spec, shape, req, r, rate_hz, outs[hz]))[0]
             builds.append(seconds)
         build += float(np.median(builds))
+        after_mesh(idx)
     for hz, out in outs.items():
         out.ms = {"build": 1000 * build / len(groups), "rollout": 1000 * rollouts[hz] / len(req)}
         spread = 1000 * (build + rollouts[hz]) / len(req)
@@ -193,25 +199,35 @@ def ceiling_row(world: PhysicsWorld, bodies: dict[str, Any], req: Requests, rate
     return out
 
 
-def physdyn_one_at_a_time(predictors: dict[str, Predictor], meshes: dict[str, trimesh.Trimesh],
-                          req: Requests, repeats: int = 1) -> dict[str, Outcome]:
+class OneAtATime:
     """``Predictor.predict`` per request, each on a fresh copy of its mesh, new to physdyn, timed; the
-    predictors take turns request by request (as the PyBullet steps do)."""
-    outs = {name: Outcome.empty(len(req)) for name in predictors}
-    spent = dict.fromkeys(predictors, 0.0)
-    for r, key in enumerate(req.mesh):
-        for name, predictor in predictors.items():
-            def new_mesh(predictor: Predictor = predictor) -> trimesh.Trimesh:
-                predictor.forget_meshes()  # outside the timing: the mesh is new to physdyn
-                return meshes[key].copy()
+    predictors take turns request by request (as the PyBullet steps do). ``run(requests)`` some requests
+    (regime (a) runs each mesh's between PyBullet's turns), ``outcomes()`` when all have run."""
 
-            seconds, result = best_of(repeats, lambda mesh: predictor.predict(
-                mesh, req.v0[r], req.w0[r], seconds=req.steps[r] / predictor.rate_hz, orientation_xyzw=req.q0[r]), new_mesh)
-            spent[name] += seconds
-            outs[name].set(r, result["com_position"], result["orientation_xyzw"], result["toppled"])
-    for name, out in outs.items():
-        out.ms = {"one": 1000 * spent[name] / len(req)}
-    return outs
+    def __init__(self, predictors: dict[str, Predictor], meshes: dict[str, trimesh.Trimesh], req: Requests,
+                 repeats: int = 1):
+        self.predictors, self.meshes, self.req, self.repeats = predictors, meshes, req, repeats
+        self.outs = {name: Outcome.empty(len(req)) for name in predictors}
+        self.spent = dict.fromkeys(predictors, 0.0)
+
+    def run(self, requests: Any) -> None:
+        req = self.req
+        for r in requests:
+            for name, predictor in self.predictors.items():
+                def new_mesh(predictor: Predictor = predictor, key: str = req.mesh[r]) -> trimesh.Trimesh:
+                    predictor.forget_meshes()  # outside the timing: the mesh is new to physdyn
+                    return self.meshes[key].copy()
+
+                seconds, result = best_of(self.repeats, lambda mesh: predictor.predict(
+                    mesh, req.v0[r], req.w0[r], seconds=req.steps[r] / predictor.rate_hz, orientation_xyzw=req.q0[r]),
+                    new_mesh)
+                self.spent[name] += seconds
+                self.outs[name].set(r, result["com_position"], result["orientation_xyzw"], result["toppled"])
+
+    def outcomes(self) -> dict[str, Outcome]:
+        for name, out in self.outs.items():
+            out.ms = {"one": 1000 * self.spent[name] / len(self.req)}
+        return self.outs
 
 
 def physdyn_batched(predictors: dict[str, Predictor], meshes: dict[str, trimesh.Trimesh], req: Requests,
@@ -318,9 +334,11 @@ def regime_new_meshes(meshes: dict[str, trimesh.Trimesh], req: Requests, worlds:
                       predictors: dict[str, Predictor], rate_hz: float, progress: Progress, repeats: int = 1) -> list[dict]:
     """Regime (a): each request a mesh new to the predictor; rows in table order."""
     rows = [make_row("Coulomb sliding (no rotation, no topple)", "baseline", req, sliding_outcome(req))]
-    rows += pybullet_table_rows(req, progress.measure("PyBullet, every step", lambda: pybullet_rows(
-        worlds, meshes, req, rate_hz, new_mesh_each=True, repeats=repeats)))
-    one = progress.measure("physdyn, one at a time", lambda: physdyn_one_at_a_time(predictors, meshes, req, repeats))
+    timer = OneAtATime(predictors, meshes, req, repeats)
+    rows += pybullet_table_rows(req, progress.measure("PyBullet at every step and physdyn one at a time, mesh by mesh",
+                                                      lambda: pybullet_rows(worlds, meshes, req, rate_hz, new_mesh_each=True,
+                                                                            repeats=repeats, after_mesh=timer.run)))
+    one = timer.outcomes()
     batched = progress.measure("physdyn, batched", lambda: physdyn_batched(predictors, meshes, req, req.rounds(), False,
                                                                            repeats))
     for name in predictors:

@@ -1,5 +1,5 @@
 """Variants of the shipped `fast` model judged where a choice may be made, and where its time goes
-(docs/ablations.md, "A cheaper fast", sixteenth session).
+(docs/ablations.md, "A cheaper fast", sixteenth session; docs/performance.md, nineteenth session).
 
     python benchmarks/studies/fast_variants.py sets CKPT ...     # random_urdfs 100-159 and robosuite, every push
     python benchmarks/studies/fast_variants.py topple CKPT ...   # topple accuracy on the frontier's pybullet set, (a) and (b)
@@ -96,6 +96,7 @@ def stages(checkpoint: str, set_name: str) -> None:
     import physdyn.models.topple_pointnet as topple_pointnet
     import physdyn.predict.body as body
     import physdyn.predict.predictor as predictor_module
+    import physdyn.eval.rollout as rollout_module
     import physdyn.sim.body as sim_body
 
     spent: collections.Counter = collections.Counter()
@@ -123,7 +124,11 @@ def stages(checkpoint: str, set_name: str) -> None:
                                (topple_pointnet.PointNetToppleClassifier, "predict", "  the topple PointNet"),
                                (dynamics_module.DynamicsModel, "encode", "  the shape code (footprint)"),
                                (outcome_correction, "correct_rollout", "  the outcome correction"),
-                               (outcome_correction.OutcomeCorrection, "correction", "    its networks")):
+                               (outcome_correction.OutcomeCorrection, "correction", "    its networks"),
+                               (predictor_module, "_posed", "posing the body (resting height, inertia)"),
+                               (rollout_module, "_oriented", "  turning clouds to step 0"),
+                               (rollout_module, "integrate", "  integrating the changes"),
+                               (single_rollout.SingleRollout, "of", "  the roll-out's weights on numpy")):
         timed(owner, name, label)
     req = requests_from_store(truth_store(collect_set(set_name, FRONTIER, 60), 5))
     meshes = {key: load_mesh(key) for key in dict.fromkeys(req.mesh)}
