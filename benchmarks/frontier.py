@@ -35,7 +35,7 @@ Two regimes:
     (before the nineteenth session PyBullet's rows were all timed before physdyn's, and two runs of the same
     code put `fast` at 0.88x and 1.15x of 1/120 s); costs are CPU time. ``--repeats N`` times every timed
     piece N times in a row (a fresh mesh and emptied caches each time) and keeps its fastest: it removes a
-    request's stalls. The batched rows and the ceilings are timed after: compare ratios within a run
+    request's stalls. The batched rows are timed after (the ceilings are not timed): compare ratios within a run
     (docs/ablations.md, "A cheaper fast").
 (b) many pushes of one mesh: ``--one-meshes`` meshes of each set, ``--one-mesh-pushes`` simulated pushes
     each, a ``--one-mesh-seconds`` horizon. physdyn: one ``predict_many`` per mesh on one mesh object
@@ -201,7 +201,7 @@ def ceiling_row(world: PhysicsWorld, bodies: dict[str, Any], req: Requests, rate
 
 class OneAtATime:
     """``Predictor.predict`` per request, each on a fresh copy of its mesh, new to physdyn, timed; the
-    predictors take turns request by request (as the PyBullet steps do). ``run(requests)`` some requests
+    predictors take turns request by request (the PyBullet steps take turns mesh by mesh). ``run(requests)`` some requests
     (regime (a) runs each mesh's between PyBullet's turns), ``outcomes()`` when all have run."""
 
     def __init__(self, predictors: dict[str, Predictor], meshes: dict[str, trimesh.Trimesh], req: Requests,

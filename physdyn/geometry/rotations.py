@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 # Up to this many quaternions the two functions below gather their products in a few array operations (each
 # operation's dispatch, microseconds, is most of the cost of a few quaternions); above it they write the
 # arithmetic out per component, which passes over a large batch's memory fewer times (5x cheaper for 4,096).
-# The two ways give the same bits.
+# The two ways give the same bits (for a NaN, its sign apart).
 GATHERED_AT_MOST = 256
 
 # quat_to_matrix's entries, row by row, as 1 - 2 (a + b) on the diagonal and 2 (a +/- b) off it, a and b
@@ -26,6 +26,8 @@ def quat_to_matrix(q_xyzw: np.ndarray) -> np.ndarray:
     A prediction of one push calls it about ten times on a few numbers: gathered in a dozen array operations
     (``GATHERED_AT_MOST``) instead of written out, 31 against 83 us a call."""
     q = np.asarray(q_xyzw, dtype=np.float64)
+    if q.shape[-1:] != (4,):  # the gathered products would read the first four numbers of anything
+        raise ValueError(f"quaternions (..., 4) expected, got shape {q.shape}")
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     if q.size > 4 * GATHERED_AT_MOST:  # written out: fewer passes over a large batch's memory
         x, y, z, w = np.moveaxis(q, -1, 0)

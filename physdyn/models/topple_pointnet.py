@@ -187,7 +187,7 @@ class PointNetToppleClassifier:
             net = ToppleNet(self.width, point_widths=tuple(self.point_widths))
             net.load_state_dict(state)
             self._modules.append(net.eval())
-        self._layers = [numpy_layers(net) for net in self._modules]
+        self._layers = [numpy_layers(net) for net in self._modules]  # the networks are fixed once built
 
     def probability(self, points_world: np.ndarray, linear_velocity: np.ndarray, angular_velocity: np.ndarray,
                     spin_inertia: np.ndarray) -> np.ndarray:

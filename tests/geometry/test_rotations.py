@@ -44,3 +44,9 @@ def test_a_few_quaternions_and_many_give_the_same_bits():
     assert np.array_equal(many, few) and np.array_equal(np.signbit(many), np.signbit(few))
     many, few = quat_to_matrix(a), np.concatenate([quat_to_matrix(a[i : i + 7]) for i in range(0, len(a), 7)])
     assert np.array_equal(many, few)
+
+
+def test_a_quaternion_of_another_length_is_refused():
+    for shape in ((5,), (2, 5), (3,)):
+        with pytest.raises(ValueError, match="quaternions"):
+            quat_to_matrix(np.ones(shape))
