@@ -243,9 +243,12 @@ def rollout(
     if topple or (steps == 0 and getattr(model, "predicts_topple", False)):
         probability = np.concatenate([np.zeros((B, 1)), np.stack(topple, axis=1) if topple else np.zeros((B, 0))], axis=1)
     classifier = getattr(model, "topple_classifier", None)
+    turned_thinned: dict[int, np.ndarray] = {}  # size -> points_body thinned to it and turned to step 0
     if classifier is not None:
         if getattr(classifier, "thinned_from", 0):  # a PointNet fitted on thinned clouds thins what it is given
             cloud = _oriented(classifier.body_clouds(_numpy(points_body if topple_points_body is None else topple_points_body)), q0)
+            if topple_points_body is None:  # the model's own clouds, thinned and turned: a PointNet correction may read them too
+                turned_thinned[classifier.num_points] = cloud
         else:
             cloud = points if topple_points_body is None else _oriented(_numpy(topple_points_body), q0)
         probability = classifier.predict(cloud, _numpy(lin_vel0).reshape(B, 3), _numpy(ang_vel0).reshape(B, 3), steps,
@@ -267,8 +270,13 @@ def rollout(
     if correction is not None:  # fit-outcome: where the push ends, learned
         from physdyn.models.outcome_correction import correct_rollout  # torch: only for models that have one
 
-        # a PointNet correction (fit-outcome --pointnet) reads the cloud, thinned as the classifier's (one thinning)
-        clouds = _oriented(correction.body_clouds(_numpy(points_body)), q0) if getattr(correction, "num_points", 0) else None
+        # a PointNet correction (fit-outcome --pointnet) reads the cloud, thinned as the classifier's: one thinning
+        # (``thinned_clouds``) and, where the classifier read points_body, one turning
+        clouds = None
+        if getattr(correction, "num_points", 0):
+            body = correction.body_clouds(_numpy(points_body))  # checks the size it reads
+            thinned = correction.thinned_from and correction.num_points in turned_thinned
+            clouds = turned_thinned[correction.num_points] if thinned else _oriented(body, q0)
         states = {**states, **{k: np.array(v) for k, v in deltas.items()}}
         correct_rollout(model, states, _numpy(lin_vel0).reshape(B, 3), _numpy(ang_vel0).reshape(B, 3), given_spin_inertia,
                         points, toppled, lengths, clouds)

@@ -85,6 +85,15 @@ class _Network:
         self.predicts_topple = model.predicts_topple
         self.prior_args = (model.prior_dt, model.prior_friction, model.prior_gravity)
         self.substeps = int(m.contact_substeps)
+        # With no layer the head reads empty features: its output is its bias at every step, computed once
+        # as a step computes it (the prior alone: nothing fed to a network, nothing queued)
+        self.bias_out = None if self.layers else np.zeros(0, np.float32) @ self.head_weight + self.head_bias
+        self.bias_step = None if self.layers else self.bias_out[:12] * self.residual_mask
+        # ... and where that output is zero and the changes are not scaled (contact_prior_predictor, `fast`), a
+        # step's changes are the prior's, float32 as the sum would round them (zeros' signs apart)
+        self.prior_only = (self.bias_step is not None and self.prior != "none" and not self.bias_step.any()
+                           and not self.change_shift.any() and (self.change_scale == 1.0).all()
+                           and not self.change_shift32.any() and (self.change_scale32 == 1.0).all())
 
     def start(self, code: np.ndarray) -> None:
         """A roll-out of the shape ``code`` (this network's part of the shape code) begins."""
@@ -97,15 +106,6 @@ class _Network:
         self.h = [np.zeros(self.hidden, np.float32) for _ in self.layers]
         self.c = [np.zeros(self.hidden, np.float32) for _ in self.layers]
         self.queued: list[np.ndarray] = []
-        # With no layer the head reads empty features: its output is its bias at every step, computed once
-        # as a step computes it (the prior alone: nothing fed to a network, nothing queued)
-        self.bias_out = None if self.layers else np.zeros(0, np.float32) @ self.head_weight + self.head_bias
-        self.bias_step = None if self.layers else self.bias_out[:12] * self.residual_mask
-        # ... and where that output is zero and the changes are not scaled (contact_prior_predictor, `fast`), a
-        # step's changes are the prior's, float32 as the sum would round them (zeros' signs apart)
-        self.prior_only = (self.bias_step is not None and self.prior != "none" and not self.bias_step.any()
-                           and not self.change_shift.any() and (self.change_scale == 1.0).all()
-                           and not self.change_shift32.any() and (self.change_scale32 == 1.0).all())
 
     def prior_key(self) -> tuple:
         return (self.prior, self.uses_shape_prior, tuple(self.geometry), self.prior_args, self.substeps)

@@ -253,8 +253,11 @@ class Predictor:
         classifier = getattr(self.model, "topple_classifier", None)
         dense = None if classifier is None else given_points(classifier)  # the cloud its simulations read
         method = getattr(classifier, "points_method", "surface")  # a PointNet classifier reads hull_surface
-        topple_points = None if classifier is None and not sim_steps(self.model) else np.stack(
-            [body.points_body(dense or DEFAULT_NUM_POINTS, method) for body in bodies])
+        size = dense or DEFAULT_NUM_POINTS
+        # None where nothing reads it, or where it is the model's own cloud (`fast`: one cloud for all, thinned once)
+        topple_points = None if (classifier is None and not sim_steps(self.model)) or (
+            size == self.num_points and method == self.points_method) else np.stack(
+            [body.points_body(size, method) for body in bodies])
         results: list[dict[str, Any] | None] = [None] * R
         # Longest first, then one roll-out per chunk at the chunk's longest length: a roll-out is causal (each
         # step reads only earlier ones), so a shorter request's steps are exactly its own roll-out's and the
