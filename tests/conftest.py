@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -23,24 +25,39 @@ def tiny_data_config(*extra: str) -> DataConfig:
     return load_config(DataConfig, QUICKSTART_DATA, TINY_OVERRIDES + list(extra))
 
 
+def shared_store(tmp_path_factory, name: str, *extra: str) -> str:
+    """A tiny store simulated once per test session. `make test` runs the suite on two pytest-xdist workers:
+    the first to ask simulates the store (12 s) under a lock in the run's common temporary folder, and the
+    other reads it, rather than both simulating it at once. It is written beside its path and renamed, so a
+    worker never reads half a store. Tests only read these stores."""
+    from filelock import FileLock
+
+    from physdyn.data.simulated_store import generate_dataset
+
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # the folder the workers' own temporary folders share
+    out = root / "shared_stores" / name
+    out.parent.mkdir(exist_ok=True)
+    with FileLock(str(out) + ".lock"):
+        if not out.exists():
+            partial = out.with_name(out.name + ".partial")
+            shutil.rmtree(partial, ignore_errors=True)
+            generate_dataset(tiny_data_config(*extra), str(partial), workers=1, progress=False)
+            os.replace(partial, out)
+    return str(out)
+
+
 @pytest.fixture(scope="session")
 def tiny_store(tmp_path_factory) -> str:
     """Path of a complete, real store: 25 shapes over the five categories, 150 simulated pushes."""
-    from physdyn.data.simulated_store import generate_dataset
-
-    out = tmp_path_factory.mktemp("stores") / "tiny.zarr"
-    generate_dataset(tiny_data_config(), str(out), workers=1, progress=False)
-    return str(out)
+    return shared_store(tmp_path_factory, "tiny.zarr")
 
 
 @pytest.fixture(scope="session")
 def tiny_hull_store(tmp_path_factory) -> str:
     """The tiny store's shapes and pushes with ``hull_surface`` clouds of 64 points (the hull's vertices first)."""
-    from physdyn.data.simulated_store import generate_dataset
-
-    out = tmp_path_factory.mktemp("stores") / "tiny_hull.zarr"
-    generate_dataset(tiny_data_config("points_method=hull_surface", "num_points=64"), str(out), workers=1, progress=False)
-    return str(out)
+    return shared_store(tmp_path_factory, "tiny_hull.zarr", "points_method=hull_surface", "num_points=64")
 
 
 def run_cli(*args: str, timeout: float = 300, check: bool = False) -> subprocess.CompletedProcess:
