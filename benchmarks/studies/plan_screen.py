@@ -9,7 +9,9 @@ Variants (NAME: screen x factor + ranking step, all with the final check unless 
 prior16 (the default), prior16-nocorr (no nearest-neighbour correction), prior16-120 (PyBullet 1/120 s ranks),
 prior32-120, net4 (the bundled networks without simulator screen 4x), bundled-alone (the bundled model as the
 search's only model, no check: the previous default), hull8 (a network trained on
-hull_surface clouds, --hull-checkpoint, screens 8x), and PyBullet alone at 1/240, 1/120 and 1/60 s.
+hull_surface clouds, --hull-checkpoint, screens 8x), fast16 and fast8 (the shipped `fast` model, nothing
+simulated: the contact prior, its outcome correction and topple PointNet, screens 16x or 8x), and PyBullet alone
+at 1/240, 1/120 and 1/60 s.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ from physdyn.predict.planner import Goal, verify_push  # noqa: E402
 from physdyn.predict.predictor import load_predictor  # noqa: E402
 
 
-def variants(predictor, hull) -> dict[str, dict]:
+def variants(predictor, hull, fast) -> dict[str, dict]:
     """name -> (Predictor.plan settings, screen factor, whether the correction runs)."""
     out = {
         "prior16": ({}, 16, True),
@@ -41,6 +43,8 @@ def variants(predictor, hull) -> dict[str, dict]:
         "prior16-120": ({"pybullet_step": 1 / 120}, 16, True),
         "prior32-120": ({"pybullet_step": 1 / 120}, 32, True),
         "net4": ({"screen": "model"}, 4, True),
+        "fast16": ({"screen": fast}, 16, True),
+        "fast8": ({"screen": fast}, 8, True),
         "bundled-alone": ({"search": "model", "check": False}, 16, True),
         "pybullet-240": ({"search": "pybullet"}, 16, True),
         "pybullet-120": ({"search": "pybullet", "pybullet_step": 1 / 120}, 16, True),
@@ -63,7 +67,7 @@ def main() -> None:
     warnings.simplefilter("ignore")
     goals = goals_from_store(external_store(Path(args.work), 30, 10), args.goals)
     predictor = load_predictor()
-    table = variants(predictor, load_predictor(args.hull_checkpoint) if args.hull_checkpoint else None)
+    table = variants(predictor, load_predictor(args.hull_checkpoint) if args.hull_checkpoint else None, load_predictor("fast"))
     names = args.variants or list(table)
     search, factor, correct = planner.cross_entropy_search, planner.SCREEN_FACTOR, True
     rows: dict[str, list] = {n: [] for n in names}
