@@ -1,7 +1,8 @@
 """Install the example plugin (plugins/physdyn-dgcnn) into this environment and check physdyn lists it.
 
 The install is `pip install --no-deps --no-build-isolation --no-index -e plugins/physdyn-dgcnn`: no network,
-no dependency resolution (so torch is never touched), and repeating it is harmless. It is skipped, with the
+no dependency resolution (so torch is never touched). An install already made from this checkout (`make
+install` makes one) is kept; the slow test_installing_again_is_harmless repeats it. It is skipped, with the
 reason, when this environment cannot build a local package (no pip, or no recent setuptools). Checks run in
 fresh interpreters outside the repository, since this one may have looked up plugins before the install.
 """
@@ -10,6 +11,7 @@ from __future__ import annotations
 
 import importlib.metadata
 import importlib.util
+import json
 import os
 import subprocess
 import sys
@@ -50,9 +52,31 @@ def pip_install() -> None:
     assert proc.returncode == 0, f"{' '.join(PIP_INSTALL)} failed:\n{proc.stdout}\n{proc.stderr}"
 
 
+def installed_from_here() -> bool:
+    """Whether this environment already has the plugin installed, editable, from this checkout (what `make
+    install` does)."""
+    try:
+        url = importlib.metadata.distribution(DIST_NAME).read_text("direct_url.json")
+    except importlib.metadata.PackageNotFoundError:
+        return False
+    info = json.loads(url or "{}")
+    return info.get("url") == PLUGIN.as_uri() and bool(info.get("dir_info", {}).get("editable"))
+
+
 @pytest.fixture(scope="module")
-def installed() -> None:
-    pip_install()
+def installed(tmp_path_factory) -> None:
+    # `make test` runs the suite on two pytest-xdist workers. A reinstall removes the plugin for a moment, and
+    # another worker's physdyn process could see it half-installed then. So an install already made from
+    # this checkout is kept (test_installing_again_is_harmless, in the serial slow run, reinstalls). Otherwise
+    # the first worker installs it under a lock and the other waits for it.
+    from filelock import FileLock
+
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent
+    with FileLock(str(root / "plugin_install.lock")):
+        if not installed_from_here():
+            pip_install()
 
 
 def run_python(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
