@@ -18,7 +18,10 @@ from typing import Any
 
 import torch
 
+from physdyn.models.heads.base import NUM_CHANGES
+from physdyn.models.heads.topple import NoToppleHead, ToppleHead
 from physdyn.models.predictors.lstm import LSTMPredictor
+from physdyn.models.predictors.none import NoPredictor
 from physdyn.models.priors import RESIDUAL_MASKS
 from physdyn.models.rotations import quat_multiply, rotvec_to_quat
 
@@ -60,6 +63,11 @@ def batch_rollout(model: Any, points: Any, linear_velocity0: Any, angular_veloci
         nets = [_Rows(m, m.split_code(c), B) for m, c in parts]
         # the two networks' contact priors are one computation when they read the same footprint
         shared = len(nets) > 1 and nets[1].same_prior(nets[0])
+    # The prior alone (contact_prior_predictor(), `fast`): a step's changes are the prior's, so the forward's
+    # network inputs, empty features and zero residual are skipped (the same numbers: adding the zero
+    # residual changes no value, and the standardisation is done as the forward does it)
+    alone = not skip and prior_alone(model)
+    geometry = model.split_code(code)[1] if alone else None
     state = None
     for t in range(steps):
         if 1 <= t <= K:
@@ -71,7 +79,12 @@ def batch_rollout(model: Any, points: Any, linear_velocity0: Any, angular_veloci
         q = None if turn is None else turn.float()[:, None]
         if turns is not None:
             turns[:, t] = q[:, 0]
-        if not skip:  # the model's forward: network, prior and rest gate
+        if alone:
+            prior = model.analytic_prior(v32, w32, q, geometry)[:, 0]
+            si = ((prior - model.change_shift) / model.change_scale).to(f64) * scale + shift
+            if topple_out is not None:  # the head's topple output is its bias at every step
+                topple_out[:, t] = torch.sigmoid(model.head.linear.bias[NUM_CHANGES:NUM_CHANGES + 1].expand(B)).to(f64)
+        elif not skip:  # the model's forward: network, prior and rest gate
             out, logit, state = model(code, v32, w32, state, q)
             if topple_out is not None and logit is not None:
                 topple_out[:, t] = torch.sigmoid(logit[:, 0]).to(f64)
@@ -90,6 +103,16 @@ def batch_rollout(model: Any, points: Any, linear_velocity0: Any, angular_veloci
 
 
 LINEAR = torch.tensor(RESIDUAL_MASKS["linear"]) > 0  # the changes a combined model takes from its second network
+
+
+def prior_alone(model: Any) -> bool:
+    """Whether ``model``'s changes are its analytic prior's: one network with no layer (the ``none``
+    predictor) and a head whose change outputs are zero."""
+    if (model.linear_channels is not None or type(model.predictor) is not NoPredictor or model.config.model.prior == "none"
+            or type(model.head) not in (ToppleHead, NoToppleHead)):
+        return False
+    bias = model.head.linear.bias[:12] * model.residual_mask
+    return model.head.linear.in_features == 0 and not bool(bias.any())
 
 
 class _Rows:

@@ -218,3 +218,40 @@ def test_the_prior_alone_repeats_its_state_at_rest_as_the_torch_loop_steps_it(qu
             repeated += 1
             assert (fed[len(stepped):] == fed[len(stepped) - 1]).all() and np.abs(fed[0, :3]).max() > 0.1
     assert repeated >= 3  # most pushes' states settle exactly (some keep a 1e-45 m/s flicker, and are stepped)
+
+
+@pytest.mark.parametrize("head", ["topple", "no_topple"])
+def test_a_batch_of_the_prior_alone_skips_the_network_with_the_same_numbers(quickstart_config, store, head, monkeypatch):
+    # A batch of the prior alone (contact_prior_predictor, `fast`) takes the prior's changes without the
+    # model's forward (batch_rollout.prior_alone); the forward, which runs the empty network and adds its zero
+    # residual, gives the same numbers to the bit, the head's constant topple probability included.
+    from physdyn.models import batch_rollout as batch_module
+
+    model = _model(quickstart_config, store, ["model.predictor.name=none", f"model.head.name={head}", "model.prior=contact",
+                                              "model.orientation_input=true", "model.residual_gate_linear=0.1"])
+    with torch.no_grad():  # no residual; a topple head's logit stays a (non-zero) constant
+        model.head.linear.weight.zero_()
+        model.head.linear.bias[:12] = 0.0
+    assert batch_module.prior_alone(model)
+    sims = select_sequences(store, "test")[:6]
+    states = [_first_state(store, sim) for sim in sims]
+    points = np.concatenate([s[0] for s in states])
+    v0 = np.concatenate([s[1] for s in states])
+    w0 = np.concatenate([s[2] for s in states])
+    warm_v = torch.as_tensor(np.stack([s[3]["linear_velocity"][0, 1:3] for s in states]))
+    warm_w = torch.as_tensor(np.stack([s[3]["angular_velocity"][0, 1:3] for s in states]))
+    for warm in ((None, None), (warm_v, warm_w)):
+        with torch.inference_mode():
+            skipped = batch_rollout(model, points, v0, w0, 30, *warm)
+            monkeypatch.setattr(batch_module, "prior_alone", lambda m: False)
+            forward = batch_rollout(model, points, v0, w0, 30, *warm)
+            monkeypatch.undo()
+        for key in ("changes", "fed", "topple_probability"):
+            if forward[key] is None:
+                assert skipped[key] is None and head == "no_topple"
+                continue
+            np.testing.assert_array_equal(skipped[key].numpy(), forward[key].numpy(), err_msg=key)
+        assert skipped["changes"][:, :, 6:9].sum(1).norm(dim=-1).min() > 0  # every push moved
+    with torch.no_grad():  # a residual, however small, is a network's: the forward runs
+        model.head.linear.bias[0] = 1e-3
+    assert not batch_module.prior_alone(model)
