@@ -54,29 +54,40 @@ def pip_install() -> None:
 
 def installed_from_here() -> bool:
     """Whether this environment already has the plugin installed, editable, from this checkout (what `make
-    install` does)."""
+    install` does), with the version and entry points its pyproject.toml declares now."""
     try:
-        url = importlib.metadata.distribution(DIST_NAME).read_text("direct_url.json")
+        dist = importlib.metadata.distribution(DIST_NAME)
     except importlib.metadata.PackageNotFoundError:
         return False
-    info = json.loads(url or "{}")
-    return info.get("url") == PLUGIN.as_uri() and bool(info.get("dir_info", {}).get("editable"))
+    info = json.loads(dist.read_text("direct_url.json") or "{}")
+    project = tomllib.loads((PLUGIN / "pyproject.toml").read_text())["project"]
+    declared = {(group, name, value) for group, entries in project.get("entry-points", {}).items()
+                for name, value in entries.items()}
+    return (info.get("url") == PLUGIN.as_uri() and bool(info.get("dir_info", {}).get("editable"))
+            and dist.version == project["version"] and {(e.group, e.name, e.value) for e in dist.entry_points} == declared)
+
+
+def locked_install(tmp_path_factory, again: bool = False) -> None:
+    """``pip_install`` under a file lock shared by a run's pytest-xdist workers, so two never install at
+    once; unless ``again``, an install already made from this checkout is kept."""
+    from filelock import FileLock
+
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # the folder the workers' own temporary folders share
+    with FileLock(str(root / "plugin_install.lock")):
+        if again or not installed_from_here():
+            pip_install()
 
 
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory) -> None:
     # `make test` runs the suite on two pytest-xdist workers. A reinstall removes the plugin for a moment, and
-    # another worker's physdyn process could see it half-installed then. So an install already made from
-    # this checkout is kept (test_installing_again_is_harmless, in the serial slow run, reinstalls). Otherwise
-    # the first worker installs it under a lock and the other waits for it.
-    from filelock import FileLock
-
-    root = tmp_path_factory.getbasetemp()
-    if os.environ.get("PYTEST_XDIST_WORKER"):
-        root = root.parent
-    with FileLock(str(root / "plugin_install.lock")):
-        if not installed_from_here():
-            pip_install()
+    # physdyn processes of the other worker that load plugins could see it half-installed then. `make
+    # install` installs it before the tests, so that install is kept (test_installing_again_is_harmless, a
+    # slow test, reinstalls). Without one, the first worker to need it installs it under a lock: that keeps
+    # two installs apart, not other tests that read plugins while it runs.
+    locked_install(tmp_path_factory)
 
 
 def run_python(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
@@ -134,8 +145,8 @@ def test_physdyn_components_lists_it(installed, tmp_path):
 
 
 @pytest.mark.slow  # seconds of real simulation or installs: CI's slow pass runs it
-def test_installing_again_is_harmless(installed, tmp_path):
-    pip_install()
+def test_installing_again_is_harmless(installed, tmp_path, tmp_path_factory):
+    locked_install(tmp_path_factory, again=True)
     proc = run_python(
         ["-c", "from physdyn.registry import ENCODERS; print(ENCODERS.names().count('dgcnn'))"], tmp_path
     )

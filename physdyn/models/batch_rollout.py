@@ -68,6 +68,10 @@ def batch_rollout(model: Any, points: Any, linear_velocity0: Any, angular_veloci
     # residual changes no value, and the standardisation is done as the forward does it)
     alone = not skip and prior_alone(model)
     geometry = model.split_code(code)[1] if alone else None
+    # a head's topple output is then its bias at every step: the forward's sigmoid of it, taken once (on one
+    # element, as the forward's strided column is: torch's vectorised kernel can differ in the last bit)
+    constant = (torch.sigmoid(model.head.linear.bias[NUM_CHANGES:NUM_CHANGES + 1]).to(f64)
+                if alone and topple_out is not None else None)
     state = None
     for t in range(steps):
         if 1 <= t <= K:
@@ -82,8 +86,8 @@ def batch_rollout(model: Any, points: Any, linear_velocity0: Any, angular_veloci
         if alone:
             prior = model.analytic_prior(v32, w32, q, geometry)[:, 0]
             si = ((prior - model.change_shift) / model.change_scale).to(f64) * scale + shift
-            if topple_out is not None:  # the head's topple output is its bias at every step
-                topple_out[:, t] = torch.sigmoid(model.head.linear.bias[NUM_CHANGES:NUM_CHANGES + 1].expand(B)).to(f64)
+            if constant is not None:
+                topple_out[:, t] = constant
         elif not skip:  # the model's forward: network, prior and rest gate
             out, logit, state = model(code, v32, w32, state, q)
             if topple_out is not None and logit is not None:

@@ -227,31 +227,50 @@ def test_a_batch_of_the_prior_alone_skips_the_network_with_the_same_numbers(quic
     # residual, gives the same numbers to the bit, the head's constant topple probability included.
     from physdyn.models import batch_rollout as batch_module
 
-    model = _model(quickstart_config, store, ["model.predictor.name=none", f"model.head.name={head}", "model.prior=contact",
-                                              "model.orientation_input=true", "model.residual_gate_linear=0.1"])
-    with torch.no_grad():  # no residual; a topple head's logit stays a (non-zero) constant
-        model.head.linear.weight.zero_()
+    torch.manual_seed(0)  # standardised changes (a shift and a scale per channel) and a non-zero topple logit
+    model = DynamicsModel(quickstart_config("model.predictor.name=none", f"model.head.name={head}", "model.prior=contact",
+                                            "model.orientation_input=true", "model.residual_gate_linear=0.1"),
+                          compute_normalization(store, np.arange(store.num_sims), mode="std"),
+                          {"rate_hz": store.rate_hz, "friction": 0.25}).eval()
+    with torch.no_grad():
+        model.head.linear.bias.normal_(0.0, 1.0)
         model.head.linear.bias[:12] = 0.0
-    assert batch_module.prior_alone(model)
+    assert batch_module.prior_alone(model) and model.change_shift.abs().min() > 0
     sims = select_sequences(store, "test")[:6]
-    states = [_first_state(store, sim) for sim in sims]
+    states = [_first_state(store, sim) for sim in sims] * 4  # 24 rows: torch's vectorised kernels take them
     points = np.concatenate([s[0] for s in states])
     v0 = np.concatenate([s[1] for s in states])
     w0 = np.concatenate([s[2] for s in states])
     warm_v = torch.as_tensor(np.stack([s[3]["linear_velocity"][0, 1:3] for s in states]))
     warm_w = torch.as_tensor(np.stack([s[3]["angular_velocity"][0, 1:3] for s in states]))
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("the forward ran")
+
     for warm in ((None, None), (warm_v, warm_w)):
         with torch.inference_mode():
-            skipped = batch_rollout(model, points, v0, w0, 30, *warm)
-            monkeypatch.setattr(batch_module, "prior_alone", lambda m: False)
-            forward = batch_rollout(model, points, v0, w0, 30, *warm)
-            monkeypatch.undo()
+            with monkeypatch.context() as patch:
+                patch.setattr(DynamicsModel, "forward", refuse)
+                skipped = batch_rollout(model, points, v0, w0, 30, *warm)
+            with monkeypatch.context() as patch:
+                patch.setattr(batch_module, "prior_alone", lambda m: False)
+                forward = batch_rollout(model, points, v0, w0, 30, *warm)
         for key in ("changes", "fed", "topple_probability"):
             if forward[key] is None:
                 assert skipped[key] is None and head == "no_topple"
                 continue
             np.testing.assert_array_equal(skipped[key].numpy(), forward[key].numpy(), err_msg=key)
         assert skipped["changes"][:, :, 6:9].sum(1).norm(dim=-1).min() > 0  # every push moved
+    if head == "topple":  # the constant probability over many logits: torch's sigmoid kernels differ in a few
+        for logit in torch.randn(64):
+            with torch.no_grad():
+                model.head.linear.bias[12] = logit
+            with torch.inference_mode():
+                skipped = batch_rollout(model, points, v0, w0, 2)
+                with monkeypatch.context() as patch:
+                    patch.setattr(batch_module, "prior_alone", lambda m: False)
+                    forward = batch_rollout(model, points, v0, w0, 2)
+            np.testing.assert_array_equal(skipped["topple_probability"].numpy(), forward["topple_probability"].numpy())
     with torch.no_grad():  # a residual, however small, is a network's: the forward runs
         model.head.linear.bias[0] = 1e-3
     assert not batch_module.prior_alone(model)
