@@ -10,6 +10,8 @@ classifier) such a sequence only queues its LSTM input, taken before its next st
 the stop itself, without its sub-steps (``physdyn.models.priors.contact_changes`` without gradient). In a
 3 s roll-out most pushes rest for most steps, which made a batch of 256 about 1.8x cheaper
 (docs/performance.md).
+A model that is its prior alone (the ``none`` predictor and a zero residual: ``fast``, the planner's screen)
+takes the prior's changes without the model's forward, with the same numbers (``prior_alone``).
 """
 
 from __future__ import annotations
