@@ -25,6 +25,13 @@ def tiny_data_config(*extra: str) -> DataConfig:
     return load_config(DataConfig, QUICKSTART_DATA, TINY_OVERRIDES + list(extra))
 
 
+def shared_root(tmp_path_factory) -> Path:
+    """The run's temporary folder that its pytest-xdist workers share (their own temporary folders lie in
+    it), or the run's own without xdist: where work done once for the whole run, under a lock, goes."""
+    root = tmp_path_factory.getbasetemp()
+    return root.parent if os.environ.get("PYTEST_XDIST_WORKER") else root
+
+
 def shared_store(tmp_path_factory, name: str, *extra: str) -> str:
     """A tiny store simulated once per test session. `make test` runs the suite on two pytest-xdist workers:
     the first to ask simulates the store (12 s) under a lock in the run's common temporary folder, and the
@@ -34,10 +41,7 @@ def shared_store(tmp_path_factory, name: str, *extra: str) -> str:
 
     from physdyn.data.simulated_store import generate_dataset
 
-    root = tmp_path_factory.getbasetemp()
-    if os.environ.get("PYTEST_XDIST_WORKER"):
-        root = root.parent  # the folder the workers' own temporary folders share
-    out = root / "shared_stores" / name
+    out = shared_root(tmp_path_factory) / "shared_stores" / name
     out.parent.mkdir(exist_ok=True)
     with FileLock(str(out) + ".lock"):
         if not out.exists():

@@ -20,6 +20,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.conftest import shared_root
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
 PLUGIN = REPO_ROOT / "plugins" / "physdyn-dgcnn"
 DIST_NAME = "physdyn-dgcnn"
@@ -72,10 +74,7 @@ def locked_install(tmp_path_factory, again: bool = False) -> None:
     once; unless ``again``, an install already made from this checkout is kept."""
     from filelock import FileLock
 
-    root = tmp_path_factory.getbasetemp()
-    if os.environ.get("PYTEST_XDIST_WORKER"):
-        root = root.parent  # the folder the workers' own temporary folders share
-    with FileLock(str(root / "plugin_install.lock")):
+    with FileLock(str(shared_root(tmp_path_factory) / "plugin_install.lock")):
         if again or not installed_from_here():
             pip_install()
 

@@ -11,7 +11,8 @@ the stop itself, without its sub-steps (``physdyn.models.priors.contact_changes`
 3 s roll-out most pushes rest for most steps, which made a batch of 256 about 1.8x cheaper
 (docs/performance.md).
 A model that is its prior alone (the ``none`` predictor and a zero residual: ``fast``, the planner's screen)
-takes the prior's changes without the model's forward, with the same numbers (``prior_alone``).
+takes the prior's changes without the model's forward, with the same numbers
+(``DynamicsModel.changes_are_the_prior``).
 """
 
 from __future__ import annotations
@@ -21,9 +22,7 @@ from typing import Any
 import torch
 
 from physdyn.models.heads.base import NUM_CHANGES
-from physdyn.models.heads.topple import NoToppleHead, ToppleHead
 from physdyn.models.predictors.lstm import LSTMPredictor
-from physdyn.models.predictors.none import NoPredictor
 from physdyn.models.priors import RESIDUAL_MASKS
 from physdyn.models.rotations import quat_multiply, rotvec_to_quat
 
@@ -68,7 +67,7 @@ def batch_rollout(model: Any, points: Any, linear_velocity0: Any, angular_veloci
     # The prior alone (contact_prior_predictor(), `fast`): a step's changes are the prior's, so the forward's
     # network inputs, empty features and zero residual are skipped (the same numbers: adding the zero
     # residual changes no value, and the standardisation is done as the forward does it)
-    alone = not skip and prior_alone(model)
+    alone = not skip and model.linear_channels is None and model.changes_are_the_prior()
     geometry = model.split_code(code)[1] if alone else None
     # a head's topple output is then its bias at every step: the forward's sigmoid of it, taken once (on one
     # element, as the forward's strided column is: torch's vectorised kernel can differ in the last bit)
@@ -109,16 +108,6 @@ def batch_rollout(model: Any, points: Any, linear_velocity0: Any, angular_veloci
 
 
 LINEAR = torch.tensor(RESIDUAL_MASKS["linear"]) > 0  # the changes a combined model takes from its second network
-
-
-def prior_alone(model: Any) -> bool:
-    """Whether ``model``'s changes are its analytic prior's: one network with no layer (the ``none``
-    predictor) and a head whose change outputs are zero."""
-    if (model.linear_channels is not None or type(model.predictor) is not NoPredictor or model.config.model.prior == "none"
-            or type(model.head) not in (ToppleHead, NoToppleHead)):
-        return False
-    bias = model.head.linear.bias[:12] * model.residual_mask
-    return model.head.linear.in_features == 0 and not bool(bias.any())
 
 
 class _Rows:

@@ -24,8 +24,11 @@ from physdyn.data.windows import DELTA_KEYS
 from physdyn.errors import CheckpointError, ConfigError
 from physdyn.models.batch_rollout import LINEAR, batch_rollout
 from physdyn.models.checkpoint_file import read_torch_file
+from physdyn.models.heads.base import NUM_CHANGES
+from physdyn.models.heads.topple import NoToppleHead, ToppleHead
 from physdyn.models.losses import dynamics_loss
 from physdyn.models.optimizer import adam_with_schedule
+from physdyn.models.predictors.none import NoPredictor
 from physdyn.models.priors import RESIDUAL_MASKS, SHAPE_PRIORS, contact_changes, contact_geometry, prior_changes
 from physdyn.models.rotations import rotation_6d
 from physdyn.models.single_rollout import SingleRollout
@@ -184,6 +187,15 @@ class DynamicsModel(LightningModule):
     @property
     def uses_shape_prior(self) -> bool:
         return self.config.model.prior in SHAPE_PRIORS
+
+    def changes_are_the_prior(self) -> bool:
+        """Whether this network's changes are its analytic prior's: no layer (the ``none`` predictor) and a
+        linear head whose change outputs are zero (after its residual mask). Both roll-outs then skip the
+        network (``contact_prior_predictor()``, ``fast``); a model with ``linear_channels`` asks each network."""
+        if (type(self.predictor) is not NoPredictor or self.config.model.prior == "none"
+                or type(self.head) not in (ToppleHead, NoToppleHead)):
+            return False
+        return self.head.linear.in_features == 0 and not bool((self.head.linear.bias[:NUM_CHANGES] * self.residual_mask).any())
 
     def encode(self, points: torch.Tensor, spin_inertia: torch.Tensor | None = None) -> torch.Tensor:
         """points: (B, N, 3) world-oriented body frame, metres -> (B, F') shape code: the encoder's feature,

@@ -91,7 +91,7 @@ class _Network:
         self.bias_step = None if self.layers else self.bias_out[:12] * self.residual_mask
         # ... and where that output is zero and the changes are not scaled (contact_prior_predictor, `fast`), a
         # step's changes are the prior's, float32 as the sum would round them (zeros' signs apart)
-        self.prior_only = (self.bias_step is not None and self.prior != "none" and not self.bias_step.any()
+        self.prior_only = (model.changes_are_the_prior()
                            and not self.change_shift.any() and (self.change_scale == 1.0).all()
                            and not self.change_shift32.any() and (self.change_scale32 == 1.0).all())
 

@@ -223,10 +223,8 @@ def test_the_prior_alone_repeats_its_state_at_rest_as_the_torch_loop_steps_it(qu
 @pytest.mark.parametrize("head", ["topple", "no_topple"])
 def test_a_batch_of_the_prior_alone_skips_the_network_with_the_same_numbers(quickstart_config, store, head, monkeypatch):
     # A batch of the prior alone (contact_prior_predictor, `fast`) takes the prior's changes without the
-    # model's forward (batch_rollout.prior_alone); the forward, which runs the empty network and adds its zero
+    # model's forward (DynamicsModel.changes_are_the_prior); the forward, which runs the empty network and adds its zero
     # residual, gives the same numbers to the bit, the head's constant topple probability included.
-    from physdyn.models import batch_rollout as batch_module
-
     torch.manual_seed(0)  # standardised changes (a shift and a scale per channel) and a non-zero topple logit
     model = DynamicsModel(quickstart_config("model.predictor.name=none", f"model.head.name={head}", "model.prior=contact",
                                             "model.orientation_input=true", "model.residual_gate_linear=0.1"),
@@ -235,7 +233,7 @@ def test_a_batch_of_the_prior_alone_skips_the_network_with_the_same_numbers(quic
     with torch.no_grad():
         model.head.linear.bias.normal_(0.0, 1.0)
         model.head.linear.bias[:12] = 0.0
-    assert batch_module.prior_alone(model) and model.change_shift.abs().min() > 0
+    assert model.changes_are_the_prior() and model.change_shift.abs().min() > 0
     sims = select_sequences(store, "test")[:6]
     states = [_first_state(store, sim) for sim in sims] * 4  # 24 rows: torch's vectorised kernels take them
     points = np.concatenate([s[0] for s in states])
@@ -253,7 +251,7 @@ def test_a_batch_of_the_prior_alone_skips_the_network_with_the_same_numbers(quic
                 patch.setattr(DynamicsModel, "forward", refuse)
                 skipped = batch_rollout(model, points, v0, w0, 30, *warm)
             with monkeypatch.context() as patch:
-                patch.setattr(batch_module, "prior_alone", lambda m: False)
+                patch.setattr(DynamicsModel, "changes_are_the_prior", lambda self: False)
                 forward = batch_rollout(model, points, v0, w0, 30, *warm)
         for key in ("changes", "fed", "topple_probability"):
             if forward[key] is None:
@@ -268,9 +266,9 @@ def test_a_batch_of_the_prior_alone_skips_the_network_with_the_same_numbers(quic
             with torch.inference_mode():
                 skipped = batch_rollout(model, points, v0, w0, 2)
                 with monkeypatch.context() as patch:
-                    patch.setattr(batch_module, "prior_alone", lambda m: False)
+                    patch.setattr(DynamicsModel, "changes_are_the_prior", lambda self: False)
                     forward = batch_rollout(model, points, v0, w0, 2)
             np.testing.assert_array_equal(skipped["topple_probability"].numpy(), forward["topple_probability"].numpy())
     with torch.no_grad():  # a residual, however small, is a network's: the forward runs
         model.head.linear.bias[0] = 1e-3
-    assert not batch_module.prior_alone(model)
+    assert not model.changes_are_the_prior()
