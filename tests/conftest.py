@@ -52,16 +52,33 @@ def shared_store(tmp_path_factory, name: str, *extra: str) -> str:
     return str(out)
 
 
+SHARED_STORES = {"tiny.zarr": (), "tiny_hull.zarr": ("points_method=hull_surface", "num_points=64")}
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _stores_made_side_by_side(tmp_path_factory) -> None:
+    """On two or more xdist workers, each starts by making a different store, so both are made at once (12 s
+    each) instead of one worker waiting on the lock while the other makes the one they both first need. One
+    process alone makes each store when a test first asks for it."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+    if not worker.startswith("gw"):
+        return
+    names = list(SHARED_STORES)
+    first = int(worker[2:]) % len(names)
+    for name in names[first:] + names[:first]:
+        shared_store(tmp_path_factory, name, *SHARED_STORES[name])
+
+
 @pytest.fixture(scope="session")
 def tiny_store(tmp_path_factory) -> str:
     """Path of a complete, real store: 25 shapes over the five categories, 150 simulated pushes."""
-    return shared_store(tmp_path_factory, "tiny.zarr")
+    return shared_store(tmp_path_factory, "tiny.zarr", *SHARED_STORES["tiny.zarr"])
 
 
 @pytest.fixture(scope="session")
 def tiny_hull_store(tmp_path_factory) -> str:
     """The tiny store's shapes and pushes with ``hull_surface`` clouds of 64 points (the hull's vertices first)."""
-    return shared_store(tmp_path_factory, "tiny_hull.zarr", "points_method=hull_surface", "num_points=64")
+    return shared_store(tmp_path_factory, "tiny_hull.zarr", *SHARED_STORES["tiny_hull.zarr"])
 
 
 def run_cli(*args: str, timeout: float = 300, check: bool = False) -> subprocess.CompletedProcess:
