@@ -1,0 +1,232 @@
+"""Can a network that reads the cloud in its current pose learn the simulator's one-step change of spin?
+(docs/ablations.md, "The whole turn", twenty-first session.)
+
+"The whole turn" found that issue #26's 10 degrees needs a push's spin deceleration right to about 7-8 %, and
+that a correction of where the contact prior stops cannot get there. The alternative is a learned step: a
+network that, fed the true state at a 15 Hz step (the cloud turned to its current orientation, in the frame
+of its current horizontal travel, with the velocities, I_zz / m and the contact prior's own one-step change
+from that state), gives the truth's change over the step. This measures how well such a network fits that
+change, teacher forced (every input from the truth), before anyone builds a learned roll-out around it.
+
+    python benchmarks/studies/spin_step.py export --train data/clusters_hull.zarr \\
+        runs/urdf_train/urdf_160_999_x40_hull256.zarr --external runs/external_val_100/urdf_100_159_hull256.zarr \\
+        runs/frontier/pybullet/meshes_60_truth_x5.zarr runs/external/external_30x10.zarr --out runs/turn/step.npz
+    # on a GPU machine (runs/turn/step.npz carried):
+    python3 benchmarks/studies/spin_step.py train --out runs/turn/step.npz --device cuda --seed 0 --save $OUT/step_s0.pt
+
+Samples: every step of every non-toppling push while the body moves (speed over 0.02 m/s or spin over 0.2
+rad/s), at most ``--per-push`` a push (evenly spread). Targets: the truth's change of velocity and spin over
+the step minus the prior's, in the travel frame. Scored on the spinning samples (|w_z| > 2 rad/s): median
+|error of the change of w_z| over the median |truth's change|, the prior's and the network's.
+"""
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from unwrapped_turn import _stand_ins, load_parts  # noqa: E402
+
+_stand_ins()
+from physdyn.geometry.rotations import quat_to_matrix  # noqa: E402
+from physdyn.models import outcome_correction as oc  # noqa: E402
+from physdyn.models.topple_pointnet import travel_turn  # noqa: E402
+
+MIRROR_INPUTS = np.array([1, -1, 1, -1, 1, -1, 1, 1, -1, 1, -1, 1, -1], dtype=np.float64)  # v, w, I, dv, dw prior
+MIRROR_TARGETS = np.array([1, -1, 1, -1, 1, -1], dtype=np.float64)
+
+
+def samples(model, path, per_push, chunk=4096):
+    from physdyn.data.store import load_store
+    from physdyn.data.windows import store_spin_inertia, store_world_inertia
+    from physdyn.eval.rollout import rollout
+
+    store = load_store(path)
+    lengths = store.lengths()
+    sims, frames = [], []
+    for s in np.flatnonzero(store.topple_step < 0):
+        f = store.start[s] + np.arange(lengths[s] - 1)
+        moving = (np.linalg.norm(store.linear_velocity[f], axis=1) > 0.02) | (np.linalg.norm(store.angular_velocity[f], axis=1) > 0.2)
+        f = f[moving]
+        if len(f) > per_push:
+            f = f[np.linspace(0, len(f) - 1, per_push).round().astype(int)]
+        sims += [s] * len(f)
+        frames += list(f)
+    sims, frames = np.array(sims), np.array(frames)
+    out = {k: [] for k in ("inputs", "targets", "truth", "frame", "shape", "split", "push")}
+    for i in range(0, len(sims), chunk):
+        s, f = sims[i:i + chunk], frames[i:i + chunk]
+        q, p = store.orientation_xyzw[f], store.com_position[f]
+        v, w = store.linear_velocity[f], store.angular_velocity[f]
+        spin = store_spin_inertia(store, s, q)
+        r = rollout(model, store.points[store.shape_id[s]], q, p, v, w, 1, spin_inertia=spin,
+                    body_inertia=store_world_inertia(store, s, q))
+        turn = travel_turn(v)
+        rot = lambda x: np.einsum("bij,bj->bi", turn, x)  # noqa: E731
+        dv_p, dw_p = rot(r.linear_velocity[:, 1] - v), rot(r.angular_velocity[:, 1] - w)
+        dv_t, dw_t = rot(store.linear_velocity[f + 1] - v), rot(store.angular_velocity[f + 1] - w)
+        out["inputs"].append(np.concatenate([rot(v), rot(w), spin[:, None], dv_p, dw_p], axis=1))
+        out["targets"].append(np.concatenate([dv_t - dv_p, dw_t - dw_p], axis=1))
+        out["truth"].append(np.concatenate([dv_t, dw_t], axis=1))
+        out["frame"].append(turn @ quat_to_matrix(q))
+        out["shape"].append(store.shape_id[s].astype(np.int64))
+        out["split"].append(np.asarray(store.split[s], dtype=np.int64))
+        out["push"].append(s.astype(np.int64))
+    d = {k: np.concatenate(v).astype(np.float32 if k in ("inputs", "targets", "truth", "frame") else np.int32) for k, v in out.items()}
+    d["clouds"] = np.asarray(store.points, dtype=np.float32)
+    print(f"{path}: {len(sims)} samples", flush=True)
+    return d
+
+
+def merged(parts):
+    out, offset = {}, 0
+    for d in parts:
+        d = dict(d)
+        d["shape"] = d["shape"] + offset
+        offset += len(d["clouds"])
+        for k, v in d.items():
+            out.setdefault(k, []).append(v)
+    return {k: np.concatenate(v) for k, v in out.items()}
+
+
+def score(d, idx, fix):
+    """Median |error of the change of w_z| / median |truth's change|, and the same for the speed along the travel."""
+    spin = idx[np.abs(d["inputs"][idx, 5]) > 2.0]
+    res = {}
+    for name, col in (("w_z", 5), ("v_along", 0)):
+        sel = spin if name == "w_z" else idx
+        truth = np.abs(d["truth"][sel, col])
+        err = d["targets"][sel, col] - (0 if fix is None else fix[np.searchsorted(idx, sel), col])
+        res[name] = np.median(np.abs(err)) / np.median(truth)
+    return res
+
+
+def closed(paths, saved, model):
+    """Roll each non-toppling push of ``paths`` out with the learned step in the loop (the prior's one step
+    from the roll-out's own state, then the network's change added; the position and orientation take half
+    the added change over the step), and with the prior alone through the same loop; the final errors."""
+    from physdyn.data.store import load_store
+    from physdyn.data.windows import store_spin_inertia, store_world_inertia
+    from physdyn.eval.rollout import rollout
+    from physdyn.geometry.rotations import quat_multiply, rotvec_to_quat, wrap_angle
+    from physdyn.geometry.sampling import thin_hull_surface
+
+    run, widths = saved["run"], tuple(saved["widths"])
+    net = oc.ToppleNet(256, len(MIRROR_INPUTS), widths, outputs=6)
+    net.load_state_dict(run["state_dict"])
+    net.eval()
+    for path in paths:
+        store = load_store(path)
+        sims = np.flatnonzero(store.topple_step < 0)
+        n = store.lengths()[sims]
+        first, last = store.start[sims], store.start[sims] + n - 1
+        thin = np.stack([thin_hull_surface(c, 64) for c in np.asarray(store.points)]).astype(np.float32)
+        points = store.points[store.shape_id[sims]]
+        dt = 1.0 / 15.0
+        finals = {}
+        for learned in (False, True):
+            q, p = store.orientation_xyzw[first].copy(), store.com_position[first].copy()
+            v, w = store.linear_velocity[first].copy(), store.angular_velocity[first].copy()
+            yaw_turn = np.zeros(len(sims))
+            end_p, end_q = p.copy(), q.copy()
+            for t in range(int(n.max()) - 1):
+                r = rollout(model, points, q, p, v, w, 1, spin_inertia=store_spin_inertia(store, sims, q),
+                            body_inertia=store_world_inertia(store, sims, q))
+                q1, p1 = r.orientation_xyzw[:, 1].copy(), r.com_position[:, 1].copy()
+                v1, w1 = r.linear_velocity[:, 1].copy(), r.angular_velocity[:, 1].copy()
+                moving = (np.linalg.norm(v, axis=1) > 0.02) | (np.linalg.norm(w, axis=1) > 0.2)
+                if learned and moving.any():
+                    turn = travel_turn(v)
+                    rot = lambda x: np.einsum("bij,bj->bi", turn, x)  # noqa: E731
+                    x = np.concatenate([rot(v), rot(w), store_spin_inertia(store, sims, q)[:, None], rot(v1 - v), rot(w1 - w)], axis=1)
+                    xs = torch.tensor((x - run["inputs_mean"]) / run["inputs_std"], dtype=torch.float32)
+                    frame = turn @ quat_to_matrix(q)
+                    cl = torch.tensor(np.einsum("bij,bnj->bni", frame, thin[store.shape_id[sims]]), dtype=torch.float32)
+                    with torch.no_grad():
+                        fix = net(cl, xs).numpy() * run["targets_std"] + run["targets_mean"]
+                    back = lambda x: np.einsum("bji,bj->bi", turn, x)  # noqa: E731  travel -> world
+                    dv, dw = back(fix[:, :3]) * moving[:, None], back(fix[:, 3:]) * moving[:, None]
+                    v1, w1 = v1 + dv, w1 + dw
+                    p1 = p1 + 0.5 * dt * dv
+                    q1 = quat_multiply(rotvec_to_quat(0.5 * dt * dw), q1)
+                    q1 /= np.linalg.norm(q1, axis=1, keepdims=True)
+                q, p, v, w = q1, p1, v1, w1
+                done = t + 1 == n - 1
+                end_p[done], end_q[done] = p[done], q[done]
+            from physdyn.models.outcome_correction import yaw_of
+            from physdyn.geometry.rotations import quat_conjugate
+            dp = np.linalg.norm(end_p[:, :2] - store.com_position[last, :2], axis=1)
+            yaw = np.abs(wrap_angle(yaw_of(quat_multiply(end_q, quat_conjugate(store.orientation_xyzw[last])))))
+            finals[learned] = (np.median(dp) * 100, np.degrees(np.median(yaw)))
+        print(f"{path[-40:]:40s} {len(sims)} pushes, final position / yaw error: prior alone {finals[False][0]:.2f} cm, "
+              f"{finals[False][1]:.1f} deg; with the learned step {finals[True][0]:.2f} cm, {finals[True][1]:.1f} deg", flush=True)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("cmd", choices=["export", "train", "closed"])
+    ap.add_argument("--train", nargs="*", default=[])
+    ap.add_argument("--external", nargs="*", default=[])
+    ap.add_argument("--out", default="runs/turn/step.npz")
+    ap.add_argument("--per-push", type=int, default=12)
+    ap.add_argument("--num-points", type=int, default=64)
+    ap.add_argument("--steps", type=int, default=10000)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--widths", type=int, nargs="+", default=[64, 128, 256])
+    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--minutes", type=float, default=None)
+    ap.add_argument("--save", default=None)
+    a = ap.parse_args()
+    if a.cmd == "export":
+        from physdyn.geometry.sampling import thin_hull_surface
+        from physdyn.predict.predictor import load_predictor
+
+        model = load_predictor("fast").model
+        model.outcome_correction = model.topple_classifier = None
+        sets = [merged([samples(model, p, a.per_push) for p in a.train])] + [samples(model, p, a.per_push) for p in a.external]
+        for d in sets:
+            d["clouds"] = np.stack([thin_hull_surface(c, a.num_points) for c in d["clouds"]]).astype(np.float32)
+        flat = {f"train_{k}": v for k, v in sets[0].items()}
+        for i, d in enumerate(sets[1:]):
+            flat.update({f"ext{i}_{k}": v for k, v in d.items()})
+        flat["names"] = np.array(a.external)
+        np.savez(a.out, **flat)
+        return
+    if a.cmd == "closed":
+        from physdyn.predict.predictor import load_predictor
+
+        model = load_predictor("fast").model
+        model.outcome_correction = model.topple_classifier = None
+        closed(a.external, torch.load(a.save, weights_only=False), model)
+        return
+    tr, ex, names = load_parts(a.out)
+    train, val, test = (np.flatnonzero(tr["split"] == s) for s in (0, 1, 2))
+    oc.INPUTS, oc.MIRROR_INPUTS = len(MIRROR_INPUTS), MIRROR_INPUTS
+    oc.TARGETS, oc.MIRROR_TARGETS = ("dv_x", "dv_y", "dv_z", "dw_x", "dw_y", "dw_z"), MIRROR_TARGETS
+    t0 = time.time()
+    run = oc.train_outcome_network(tr["inputs"].astype(np.float64), tr["targets"].astype(np.float64), train, val,
+                                   a.steps, 1024, 256, a.seed, clouds=tr["clouds"], shape=tr["shape"], frame=tr["frame"],
+                                   device=a.device, point_widths=tuple(a.widths), minutes=a.minutes)
+    print(f"trained: validation {run['val_error']:.3f}, {time.time() - t0:.0f} s, {run['steps']} steps", flush=True)
+    run["state_dict"] = {k: v.cpu() for k, v in run["state_dict"].items()}
+    if a.save:
+        torch.save({"run": run, "widths": a.widths}, a.save)
+    net = oc.ToppleNet(256, len(MIRROR_INPUTS), tuple(a.widths), outputs=6)
+    net.load_state_dict(run["state_dict"])
+    net.eval()
+    for name, d, idx in [("test split", tr, test)] + [(n, e, np.arange(len(e["split"]))) for n, e in zip(names, ex)]:
+        x = torch.tensor((d["inputs"][idx] - run["inputs_mean"]) / run["inputs_std"], dtype=torch.float32)
+        cl = torch.tensor(np.einsum("bij,bnj->bni", d["frame"][idx], d["clouds"][d["shape"][idx]]), dtype=torch.float32)
+        with torch.no_grad():
+            h = torch.cat([net(cl[i:i + 8192], x[i:i + 8192]) for i in range(0, len(x), 8192)]).numpy()
+        fix = h * run["targets_std"] + run["targets_mean"]
+        prior, learned = score(d, idx, None), score(d, idx, fix)
+        print(f"{name[-40:]:40s} change of w_z (spinning): prior {prior['w_z']:.3f}, network {learned['w_z']:.3f} | "
+              f"of the speed along: prior {prior['v_along']:.3f}, network {learned['v_along']:.3f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
