@@ -2,7 +2,7 @@
 target relative to it? (docs/ablations.md, twenty-first session.)
 
 A push turns a median 206 degrees on the frontier's pybullet set, and the contact prior's whole turn is off by
-a factor (truth / prior: quartiles 1.03-1.60), yet the shipped correction reads and corrects the resting yaw
+a factor (truth / prior: quartiles 1.04-1.62), yet the shipped correction reads and corrects the resting yaw
 wrapped to [-pi, pi]: it cannot say "a fifth more turn". Kinds:
   A  the shipped formulation: 13 inputs, target wrap(truth yaw - roll-out yaw);
   B  14 inputs, the roll-out's unwrapped turn added; target (turn_truth - turn_rollout) / (|turn_rollout| + C);

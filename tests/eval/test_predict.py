@@ -1,6 +1,9 @@
 """`physdyn predict` and the predictor API on users' own meshes, with a real (tiny) trained checkpoint."""
 
+import contextlib
+import io
 import json
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +13,7 @@ import trimesh
 from PIL import Image
 
 import physdyn
+from physdyn.cli import main as cli_main
 from physdyn.errors import PhysdynError, PredictionError, PredictionWarning
 from physdyn.geometry.rotations import quat_to_matrix
 from physdyn.models.training import fit, load_experiment_config
@@ -42,15 +46,32 @@ def meshes(tmp_path_factory):
     return folder
 
 
+def predict_argv(mesh, checkpoint, out, *extra):
+    return ["predict", str(mesh), "--lin-vel", *map(str, LIN), "--ang-vel", *map(str, ANG), "--seconds", str(SECONDS),
+            "--checkpoint", checkpoint, "--out", str(out), *extra]
+
+
 @pytest.fixture(scope="module")
 def cli_run(checkpoint, meshes, tmp_path_factory):
-    """One user run with every option: JSON out, the simulation beside, an animation."""
+    """One user run with every option: JSON out, the simulation beside, an animation. Through the command
+    line's main in this process (a fresh one spends 9 s importing lightning: the slow test below runs one)."""
     out = tmp_path_factory.mktemp("cli")
-    proc = run_cli("predict", str(meshes / "box.obj"), "--lin-vel", *map(str, LIN), "--ang-vel", *map(str, ANG),
-                   "--seconds", str(SECONDS), "--checkpoint", checkpoint, "--out", str(out / "box.json"),
-                   "--compare-sim", "--render", str(out / "box.gif"))
+    stdout, stderr = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+        code = cli_main(predict_argv(meshes / "box.obj", checkpoint, out / "box.json", "--compare-sim", "--render", str(out / "box.gif")))
+    proc = subprocess.CompletedProcess(["physdyn", "predict"], code, stdout.getvalue(), stderr.getvalue())
     assert proc.returncode == 0, proc.stderr[-2000:]
     return out, proc
+
+
+@pytest.mark.slow  # a fresh process: 9 s of it importing lightning
+def test_predict_in_a_fresh_process_writes_what_main_writes(cli_run, meshes, checkpoint, tmp_path):
+    proc = run_cli(*predict_argv(meshes / "box.obj", checkpoint, tmp_path / "box.json"))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert f"wrote {tmp_path / 'box.json'}" in proc.stdout
+    fresh, in_process = read_prediction(tmp_path / "box.json"), read_prediction(cli_run[0] / "box.json")
+    for key in ("com_position", "orientation_xyzw", "linear_velocity", "angular_velocity"):
+        np.testing.assert_array_equal(fresh[key], in_process[key])
 
 
 def _posed_min_z(mesh_path, result, step=0):
