@@ -171,7 +171,7 @@ def main():
     ap.add_argument("--train", nargs="*", default=[])
     ap.add_argument("--external", nargs="*", default=[])
     ap.add_argument("--out", default="runs/turn/step.npz")
-    ap.add_argument("--per-push", type=int, default=12)
+    ap.add_argument("--per-push", type=int, default=8)
     ap.add_argument("--num-points", type=int, default=64)
     ap.add_argument("--steps", type=int, default=10000)
     ap.add_argument("--seed", type=int, default=0)

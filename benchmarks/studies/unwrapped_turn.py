@@ -218,25 +218,24 @@ def turns(path):
         known = [np.degrees(np.median(np.abs(wrap_angle(tt * s * rng.standard_normal(len(tt)))))) for s in (0.02, 0.05, 0.1, 0.2)]
         print("   the truth's turn known to 2 / 5 / 10 / 20 %% (gaussian): yaw error %.1f / %.1f / %.1f / %.1f deg" % tuple(known))
     m = tr["rests"] & (np.abs(tr["tp"]) > 1.0) & (np.sign(tr["tp"]) == np.sign(tr["tt"]))
-    tp, tt, shape = tr["tp"][m], tr["tt"][m], tr["shape"][m]
-    lr = np.log(tt / tp)
-    within, loo, base = [], [], []
+    lr_all = np.log(tr["tt"][m] / tr["tp"][m])
+    shape = tr["shape"][m]
+    # the pushes of shapes with at least five such pushes: every figure below is over these
+    keep = np.isin(shape, [u for u in np.unique(shape) if (shape == u).sum() >= 5])
+    tp, tt, shape, lr = tr["tp"][m][keep], tr["tt"][m][keep], shape[keep], lr_all[keep]
+    within, loo = [], np.empty(len(tp))
     for u in np.unique(shape):
         j = np.flatnonzero(shape == u)
-        if len(j) < 5:
-            continue
         within.append(lr[j] - np.median(lr[j]))
         for k in j:
-            factor = np.exp(np.median(lr[j[j != k]]))  # the shape's other pushes' median factor
-            loo.append(abs(wrap_angle(tt[k] - factor * tp[k])))
-            base.append(abs(wrap_angle(tt[k] - tp[k])))
+            loo[k] = abs(wrap_angle(tt[k] - np.exp(np.median(lr[j[j != k]])) * tp[k]))  # its shape's other pushes
     g = np.exp(np.median(lr))
-    print(f"== training stores, pushes turning over 1 rad the same way in both ({m.sum()}): log(truth / roll-out turn) "
-          f"median {np.median(lr):.3f}, spread (median |deviation|) {np.median(np.abs(lr - np.median(lr))):.3f} over all, "
-          f"{np.median(np.abs(np.concatenate(within))):.3f} within a shape")
-    print(f"   yaw error: the roll-out {np.degrees(np.median(base)):.1f} deg; each push's turn times its shape's other pushes' "
-          f"median factor {np.degrees(np.median(loo)):.1f} deg; times one factor for all ({g:.3f}) "
-          f"{np.degrees(np.median(np.abs(wrap_angle(tt - g * tp)))):.1f} deg")
+    print(f"== training stores, pushes turning over 1 rad the same way in both, of shapes with at least five such "
+          f"({len(tp)} of {m.sum()}): log(truth / roll-out turn) median {np.median(lr):.3f}, spread (median |deviation|) "
+          f"{np.median(np.abs(lr - np.median(lr))):.3f} over all, {np.median(np.abs(np.concatenate(within))):.3f} within a shape")
+    print(f"   yaw error: the roll-out {np.degrees(np.median(np.abs(wrap_angle(tt - tp)))):.1f} deg; each push's turn times "
+          f"its shape's other pushes' median factor {np.degrees(np.median(loo)):.1f} deg; times one factor for all "
+          f"({g:.3f}) {np.degrees(np.median(np.abs(wrap_angle(tt - g * tp)))):.1f} deg")
 
 
 def main():
