@@ -104,70 +104,138 @@ def score(d, idx, fix):
     return res
 
 
-def closed(paths, saved, model):
-    """Roll each non-toppling push of ``paths`` out with the learned step in the loop (the prior's one step
-    from the roll-out's own state, then the network's change added; the position and orientation take half
-    the added change over the step), and with the prior alone through the same loop; the final errors."""
-    from physdyn.data.store import load_store
+def learned_rollout(model, store, sims, thin, steps, net=None, run=None, chunk=8192):
+    """The pushes ``sims`` of ``store`` rolled out ``steps`` 15 Hz steps from step 0: each step the prior's one
+    step from the roll-out's own state, then (with ``net``) the network's change added, the position and
+    orientation taking half the added change over the step; the network is off once the body has stopped.
+    Returns the states (p, q, v, w), each (B, steps + 1, 3 or 4)."""
     from physdyn.data.windows import store_spin_inertia, store_world_inertia
     from physdyn.eval.rollout import rollout
-    from physdyn.geometry.rotations import quat_multiply, rotvec_to_quat, wrap_angle
-    from physdyn.geometry.sampling import thin_hull_surface
+    from physdyn.geometry.rotations import quat_multiply, rotvec_to_quat
 
+    first = store.start[sims]
+    q, p = store.orientation_xyzw[first].copy(), store.com_position[first].copy()
+    v, w = store.linear_velocity[first].copy(), store.angular_velocity[first].copy()
+    points = store.points[store.shape_id[sims]]
+    dt = 1.0 / 15.0
+    path = [(p, q, v, w)]
+    for _ in range(steps):
+        r = rollout(model, points, q, p, v, w, 1, spin_inertia=store_spin_inertia(store, sims, q),
+                    body_inertia=store_world_inertia(store, sims, q))
+        q1, p1 = r.orientation_xyzw[:, 1].copy(), r.com_position[:, 1].copy()
+        v1, w1 = r.linear_velocity[:, 1].copy(), r.angular_velocity[:, 1].copy()
+        moving = np.flatnonzero((np.linalg.norm(v, axis=1) > 0.02) | (np.linalg.norm(w, axis=1) > 0.2))
+        if net is not None and len(moving):
+            for part in np.array_split(moving, -(-len(moving) // chunk)):
+                turn = travel_turn(v[part])
+                rot = lambda x: np.einsum("bij,bj->bi", turn, x)  # noqa: E731
+                spin = store_spin_inertia(store, sims[part], q[part])
+                x = np.concatenate([rot(v[part]), rot(w[part]), spin[:, None], rot(v1[part] - v[part]), rot(w1[part] - w[part])], axis=1)
+                xs = torch.tensor((x - run["inputs_mean"]) / run["inputs_std"], dtype=torch.float32)
+                frame = turn @ quat_to_matrix(q[part])
+                cl = torch.tensor(np.einsum("bij,bnj->bni", frame, thin[store.shape_id[sims[part]]]), dtype=torch.float32)
+                with torch.no_grad():
+                    fix = net(cl, xs).numpy() * run["targets_std"] + run["targets_mean"]
+                back = lambda x: np.einsum("bji,bj->bi", turn, x)  # noqa: E731  travel -> world
+                dv, dw = back(fix[:, :3]), back(fix[:, 3:])
+                v1[part] += dv
+                w1[part] += dw
+                p1[part] += 0.5 * dt * dv
+                q1[part] = quat_multiply(rotvec_to_quat(0.5 * dt * dw), q1[part])
+                q1[part] /= np.linalg.norm(q1[part], axis=1, keepdims=True)
+        p, q, v, w = p1, q1, v1, w1
+        path.append((p, q, v, w))
+    return tuple(np.stack([s[i] for s in path], axis=1) for i in range(4))
+
+
+def load_step_network(saved):
     run, widths = saved["run"], tuple(saved["widths"])
     net = oc.ToppleNet(256, len(MIRROR_INPUTS), widths, outputs=6)
     net.load_state_dict(run["state_dict"])
     net.eval()
+    return net, run
+
+
+def closed(paths, saved, model):
+    """Roll each non-toppling push of ``paths`` out with the learned step in the loop (``learned_rollout``) and
+    with the prior alone through the same loop; the final errors at the truth's last step."""
+    from physdyn.data.store import load_store
+    from physdyn.geometry.rotations import quat_conjugate, quat_multiply, wrap_angle
+    from physdyn.geometry.sampling import thin_hull_surface
+
+    net, run = load_step_network(saved)
     for path in paths:
         store = load_store(path)
         sims = np.flatnonzero(store.topple_step < 0)
         n = store.lengths()[sims]
-        first, last = store.start[sims], store.start[sims] + n - 1
+        last = store.start[sims] + n - 1
         thin = np.stack([thin_hull_surface(c, 64) for c in np.asarray(store.points)]).astype(np.float32)
-        points = store.points[store.shape_id[sims]]
-        dt = 1.0 / 15.0
         finals = {}
         for learned in (False, True):
-            q, p = store.orientation_xyzw[first].copy(), store.com_position[first].copy()
-            v, w = store.linear_velocity[first].copy(), store.angular_velocity[first].copy()
-            yaw_turn = np.zeros(len(sims))
-            end_p, end_q = p.copy(), q.copy()
-            for t in range(int(n.max()) - 1):
-                r = rollout(model, points, q, p, v, w, 1, spin_inertia=store_spin_inertia(store, sims, q),
-                            body_inertia=store_world_inertia(store, sims, q))
-                q1, p1 = r.orientation_xyzw[:, 1].copy(), r.com_position[:, 1].copy()
-                v1, w1 = r.linear_velocity[:, 1].copy(), r.angular_velocity[:, 1].copy()
-                moving = (np.linalg.norm(v, axis=1) > 0.02) | (np.linalg.norm(w, axis=1) > 0.2)
-                if learned and moving.any():
-                    turn = travel_turn(v)
-                    rot = lambda x: np.einsum("bij,bj->bi", turn, x)  # noqa: E731
-                    x = np.concatenate([rot(v), rot(w), store_spin_inertia(store, sims, q)[:, None], rot(v1 - v), rot(w1 - w)], axis=1)
-                    xs = torch.tensor((x - run["inputs_mean"]) / run["inputs_std"], dtype=torch.float32)
-                    frame = turn @ quat_to_matrix(q)
-                    cl = torch.tensor(np.einsum("bij,bnj->bni", frame, thin[store.shape_id[sims]]), dtype=torch.float32)
-                    with torch.no_grad():
-                        fix = net(cl, xs).numpy() * run["targets_std"] + run["targets_mean"]
-                    back = lambda x: np.einsum("bji,bj->bi", turn, x)  # noqa: E731  travel -> world
-                    dv, dw = back(fix[:, :3]) * moving[:, None], back(fix[:, 3:]) * moving[:, None]
-                    v1, w1 = v1 + dv, w1 + dw
-                    p1 = p1 + 0.5 * dt * dv
-                    q1 = quat_multiply(rotvec_to_quat(0.5 * dt * dw), q1)
-                    q1 /= np.linalg.norm(q1, axis=1, keepdims=True)
-                q, p, v, w = q1, p1, v1, w1
-                done = t + 1 == n - 1
-                end_p[done], end_q[done] = p[done], q[done]
-            from physdyn.models.outcome_correction import yaw_of
-            from physdyn.geometry.rotations import quat_conjugate
+            P, Q, _, _ = learned_rollout(model, store, sims, thin, int(n.max()) - 1, *((net, run) if learned else ()))
+            rows = np.arange(len(sims))
+            end_p, end_q = P[rows, n - 1], Q[rows, n - 1]
             dp = np.linalg.norm(end_p[:, :2] - store.com_position[last, :2], axis=1)
-            yaw = np.abs(wrap_angle(yaw_of(quat_multiply(end_q, quat_conjugate(store.orientation_xyzw[last])))))
+            yaw = np.abs(wrap_angle(oc.yaw_of(quat_multiply(end_q, quat_conjugate(store.orientation_xyzw[last])))))
             finals[learned] = (np.median(dp) * 100, np.degrees(np.median(yaw)))
         print(f"{path[-40:]:40s} {len(sims)} pushes, final position / yaw error: prior alone {finals[False][0]:.2f} cm, "
               f"{finals[False][1]:.1f} deg; with the learned step {finals[True][0]:.2f} cm, {finals[True][1]:.1f} deg", flush=True)
 
 
+def stack(train_paths, ext_paths, saved, model, steps, seeds):
+    """A correction of the end (fit-outcome's 13-input networks) fitted on the learned step's roll-outs to
+    rest, and scored on them: does it add to the learned step?"""
+    from physdyn.data.store import load_store
+    from physdyn.data.windows import store_spin_inertia
+    from physdyn.geometry.rotations import wrap_angle
+    from physdyn.geometry.sampling import thin_hull_surface
+
+    net, run = load_step_network(saved)
+
+    def outcomes(path):
+        store = load_store(path)
+        sims = np.flatnonzero(store.topple_step < 0)
+        n = store.lengths()[sims]
+        first, last = store.start[sims], store.start[sims] + n - 1
+        thin = np.stack([thin_hull_surface(c, 64) for c in np.asarray(store.points)]).astype(np.float32)
+        P, Q, V, W = learned_rollout(model, store, sims, thin, int(n.max()) - 1 + oc.EXTRA_STEPS, net, run)
+        rows, end = np.arange(len(sims)), n - 1 + oc.EXTRA_STEPS
+        q0, v0, w0 = store.orientation_xyzw[first], store.linear_velocity[first], store.angular_velocity[first]
+        inputs, turn = oc.outcome_inputs(v0, w0, store_spin_inertia(store, sims, q0), store.com_position[first], q0,
+                                         P[rows, end], Q[rows, end], V[rows, end], W[rows, end])
+        truth = oc.resting_state(turn, store.com_position[first], q0, store.com_position[last], store.orientation_xyzw[last],
+                                 store.linear_velocity[last], store.angular_velocity[last])
+        target = truth[:, 3:] - inputs[:, 9:12]
+        target[:, 2] = wrap_angle(target[:, 2])
+        rests = (np.linalg.norm(V[rows, end], axis=1) < oc.REST_SPEED) & (np.linalg.norm(W[rows, end], axis=1) < oc.REST_SPIN)
+        print(f"rolled {path}: {len(sims)} pushes, {rests.sum()} at rest", flush=True)
+        return {"inputs": inputs, "targets": target, "rests": rests, "split": np.asarray(store.split[sims])}
+
+    parts = [outcomes(p) for p in train_paths]
+    tr = {k: np.concatenate([d[k] for d in parts]) for k in parts[0]}
+    train, val = (np.flatnonzero(tr["rests"] & (tr["split"] == s)) for s in (0, 1))
+    runs = [oc.train_outcome_network(tr["inputs"], tr["targets"], train, val, steps, 1024, 256, s) for s in seeds]
+    for path in ext_paths:
+        d = outcomes(path)
+        idx = np.flatnonzero(d["rests"])
+        line = [f"{path[-40:]:40s} {len(idx)} at rest: the learned step %.2f cm, %.1f deg" % (
+            100 * np.median(np.hypot(*d["targets"][idx, :2].T)), np.degrees(np.median(np.abs(d["targets"][idx, 2]))))]
+        for s, r in zip(seeds, runs):
+            net_c = oc.OutcomeNet(256, 13)
+            net_c.load_state_dict(r["state_dict"])
+            x = torch.tensor((d["inputs"][idx] - r["inputs_mean"]) / r["inputs_std"], dtype=torch.float32)
+            x[:, torch.tensor(r["inputs_std"] < oc.CONSTANT_INPUT)] = 0
+            with torch.no_grad():
+                fix = net_c(x).numpy() * r["targets_std"] + r["targets_mean"]
+            err = d["targets"][idx] - fix
+            line.append(f"+ correction s{s} %.2f cm, %.1f deg" % (100 * np.median(np.hypot(*err[:, :2].T)),
+                                                               np.degrees(np.median(np.abs(wrap_angle(err[:, 2]))))))
+        print(" | ".join(line), flush=True)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("cmd", choices=["export", "train", "closed"])
+    ap.add_argument("cmd", choices=["export", "train", "closed", "stack"])
     ap.add_argument("--train", nargs="*", default=[])
     ap.add_argument("--external", nargs="*", default=[])
     ap.add_argument("--out", default="runs/turn/step.npz")
@@ -195,12 +263,15 @@ def main():
         flat["names"] = np.array(a.external)
         np.savez(a.out, **flat)
         return
-    if a.cmd == "closed":
+    if a.cmd in ("closed", "stack"):
         from physdyn.predict.predictor import load_predictor
 
         model = load_predictor("fast").model
         model.outcome_correction = model.topple_classifier = None
-        closed(a.external, torch.load(a.save, weights_only=False), model)
+        if a.cmd == "closed":
+            closed(a.external, torch.load(a.save, weights_only=False), model)
+        else:
+            stack(a.train, a.external, torch.load(a.save, weights_only=False), model, a.steps, (0, 1))
         return
     tr, ex, names = load_parts(a.out)
     train, val, test = (np.flatnonzero(tr["split"] == s) for s in (0, 1, 2))
