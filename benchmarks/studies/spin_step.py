@@ -13,6 +13,12 @@ change, teacher forced (every input from the truth), before anyone builds a lear
         runs/frontier/pybullet/meshes_60_truth_x5.zarr runs/external/external_30x10.zarr --out runs/turn/step.npz
     # on a GPU machine (runs/turn/step.npz carried):
     python3 benchmarks/studies/spin_step.py train --out runs/turn/step.npz --device cuda --seed 0 --save $OUT/step_s0.pt
+    # here: the learned step in the loop, against the prior alone in the same loop
+    python benchmarks/studies/spin_step.py closed --save step_s0.pt --external runs/external_val_100/urdf_100_159_hull256.zarr \
+        runs/frontier/pybullet/meshes_60_truth_x5.zarr runs/external/external_30x10.zarr
+    # and with fit-outcome's 13-input correction fitted on the learned step's roll-outs
+    python benchmarks/studies/spin_step.py stack --steps 4000 --save step_s0.pt --train data/clusters_hull.zarr \
+        runs/urdf_train/urdf_160_999_x40_hull256.zarr --external ...
 
 Samples: every step of every non-toppling push while the body moves (speed over 0.02 m/s or spin over 0.2
 rad/s), at most ``--per-push`` a push (evenly spread). Targets: the truth's change of velocity and spin over
