@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from unwrapped_turn import _stand_ins, load_parts  # noqa: E402
+from unwrapped_turn import _stand_ins, load_parts, predict  # noqa: E402
 
 _stand_ins()
 from physdyn.geometry.rotations import quat_to_matrix  # noqa: E402
@@ -227,13 +227,7 @@ def stack(train_paths, ext_paths, saved, model, steps, seeds):
         line = [f"{path[-40:]:40s} {len(idx)} at rest: the learned step %.2f cm, %.1f deg" % (
             100 * np.median(np.hypot(*d["targets"][idx, :2].T)), np.degrees(np.median(np.abs(d["targets"][idx, 2]))))]
         for s, r in zip(seeds, runs):
-            net_c = oc.OutcomeNet(256, 13)
-            net_c.load_state_dict(r["state_dict"])
-            x = torch.tensor((d["inputs"][idx] - r["inputs_mean"]) / r["inputs_std"], dtype=torch.float32)
-            x[:, torch.tensor(r["inputs_std"] < oc.CONSTANT_INPUT)] = 0
-            with torch.no_grad():
-                fix = net_c(x).numpy() * r["targets_std"] + r["targets_mean"]
-            err = d["targets"][idx] - fix
+            err = d["targets"][idx] - predict(r, d["inputs"][idx])
             line.append(f"+ correction s{s} %.2f cm, %.1f deg" % (100 * np.median(np.hypot(*err[:, :2].T)),
                                                                np.degrees(np.median(np.abs(wrap_angle(err[:, 2]))))))
         print(" | ".join(line), flush=True)

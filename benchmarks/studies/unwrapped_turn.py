@@ -60,7 +60,7 @@ def _stand_ins() -> None:
 
 
 _stand_ins()
-from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_matrix, wrap_angle  # noqa: E402
+from physdyn.geometry.rotations import quat_conjugate, quat_multiply, wrap_angle  # noqa: E402
 from physdyn.models import outcome_correction as oc  # noqa: E402
 
 C = 0.5  # rad: B's target is the turn's miss over |the roll-out's turn| + C, so small turns keep a scale
@@ -76,50 +76,35 @@ def unwrapped(q, w, dt):
 
 
 
-def outcomes(model, paths, chunk=2048):
+def outcomes(model, paths):
     """physdyn.eval.outcome_fit.store_outcomes plus the roll-out's and the truth's unwrapped turns (tp, tt) and
-    the truth's displacement (disp)."""
+    the truth's displacement (disp): the roll-outs are store_outcomes' own, read as it makes them."""
     from physdyn.data.store import load_store
-    from physdyn.data.windows import store_spin_inertia, store_world_inertia
-    from physdyn.eval.rollout import rollout
-    parts = {k: [] for k in ("inputs", "targets", "split", "shape", "rests", "frame", "tp", "tt", "disp")}
-    clouds, offset = [], 0
-    for path in paths:
-        store = load_store(path)
-        sims = np.flatnonzero(store.topple_step < 0)
-        lengths = store.lengths()
-        for part in np.array_split(sims, max(1, -(-len(sims) // chunk))):
-            first, last = store.start[part], store.start[part] + lengths[part] - 1
-            q0, p0 = store.orientation_xyzw[first], store.com_position[first]
-            v0, w0 = store.linear_velocity[first], store.angular_velocity[first]
-            spin = store_spin_inertia(store, part, q0)
-            out = rollout(model, store.points[store.shape_id[part]], q0, p0, v0, w0,
-                          int(lengths[part].max()) - 1 + oc.EXTRA_STEPS, spin_inertia=spin,
-                          body_inertia=store_world_inertia(store, part, q0))
-            p, q = out.com_position[:, -1], out.orientation_xyzw[:, -1]
-            v, w = out.linear_velocity[:, -1], out.angular_velocity[:, -1]
-            inputs, turn = oc.outcome_inputs(v0, w0, spin, p0, q0, p, q, v, w)
-            truth = oc.resting_state(turn, p0, q0, store.com_position[last], store.orientation_xyzw[last],
-                                     store.linear_velocity[last], store.angular_velocity[last])
-            target = truth[:, 3:] - inputs[:, 9:12]
-            target[:, 2] = wrap_angle(target[:, 2])
-            parts["tp"].append(unwrapped(out.orientation_xyzw, out.angular_velocity, model.prior_dt)[:, -1])
-            parts["tt"].append(np.array([unwrapped(store.orientation_xyzw[None, a:a + n], store.angular_velocity[None, a:a + n], 1 / 15)[0, -1]
-                                         for a, n in zip(store.start[part], lengths[part])]))
-            parts["disp"].append(np.linalg.norm(truth[:, 3:5], axis=1))
-            parts["inputs"].append(inputs)
-            parts["targets"].append(target)
-            parts["split"].append(np.asarray(store.split[part], dtype=np.int64))
-            parts["shape"].append(store.shape_id[part].astype(np.int64) + offset)
-            parts["frame"].append(turn @ quat_to_matrix(q0))
-            parts["rests"].append((np.linalg.norm(v, axis=1) < oc.REST_SPEED) & (np.linalg.norm(w, axis=1) < oc.REST_SPIN))
-        clouds.append(np.asarray(store.points, dtype=np.float32))
-        offset += store.num_shapes
-        print(f"rolled {path}", flush=True)
-    out = {k: np.concatenate(v) for k, v in parts.items()}
-    out["clouds"] = np.concatenate(clouds)
-    return out
+    from physdyn.eval import outcome_fit
 
+    stores = [load_store(p) for p in paths]
+    rolled = []
+
+    def keeping(*args, **kwargs):
+        out = real(*args, **kwargs)
+        rolled.append(unwrapped(out.orientation_xyzw, out.angular_velocity, model.prior_dt)[:, -1])
+        return out
+
+    real, outcome_fit.rollout = outcome_fit.rollout, keeping
+    try:
+        out = outcome_fit.store_outcomes(model, stores)
+    finally:
+        outcome_fit.rollout = real
+    out["tp"] = np.concatenate(rolled)
+    tt = []
+    for store in stores:  # store_outcomes' order: each store's non-toppling pushes
+        lengths = store.lengths()
+        for s in np.flatnonzero(store.topple_step < 0):
+            a, n = store.start[s], lengths[s]
+            tt.append(unwrapped(store.orientation_xyzw[None, a:a + n], store.angular_velocity[None, a:a + n], 1 / 15)[0, -1])
+    out["tt"] = np.array(tt)
+    out["disp"] = np.linalg.norm(out["targets"][:, :2] + out["inputs"][:, 9:11], axis=1)  # truth = roll-out + target
+    return out
 
 
 def variant(d, kind):

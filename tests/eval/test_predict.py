@@ -260,10 +260,9 @@ def test_bad_input_exits_with_one_line_and_writes_nothing(case, checkpoint, mesh
         out = bad_files / "taken.json"
     elif case == "bad extension":
         out = tmp_path / "out.txt"
-    from physdyn.cli import main  # in-process: the CLI's own error boundary, without a fresh interpreter per case
-
-    code = main(["predict", mesh, "--lin-vel", *lin, "--ang-vel", "0", "0", "1", "--checkpoint", ckpt, "--out", str(out),
-                 "--render", str(tmp_path / "anim.gif")])
+    # in-process: the CLI's own error boundary, without a fresh interpreter per case
+    code = cli_main(["predict", mesh, "--lin-vel", *lin, "--ang-vel", "0", "0", "1", "--checkpoint", ckpt, "--out", str(out),
+                     "--render", str(tmp_path / "anim.gif")])
     err = capsys.readouterr().err
     assert code == 2
     lines = err.strip().splitlines()
@@ -350,9 +349,7 @@ def test_a_networks_only_model_predicts_with_no_simulator(checkpoint, meshes, mo
 
 def _cli(*args: str, capsys) -> tuple[int, str, str]:
     """`physdyn ARGS` in this process (the CLI's own error boundary): exit code, stdout, stderr."""
-    from physdyn.cli import main
-
-    code = main(list(args))
+    code = cli_main(list(args))
     captured = capsys.readouterr()
     return code, captured.out, captured.err
 
