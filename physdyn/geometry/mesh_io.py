@@ -296,9 +296,53 @@ def _orient(mesh: trimesh.Trimesh) -> None:
     """Make winding consistent and normals point outwards (in place)."""
     try:
         trimesh.repair.fix_winding(mesh)
-        trimesh.repair.fix_normals(mesh, multibody=True)
     except Exception:  # non-manifold face adjacency can defeat the graph traversal; leave it as it is
         return
+    _flip_inverted_bodies(mesh)
     # fix_normals flips by the sign of the signed volume, which is meaningless for an open surface.
     if mesh.is_watertight and mesh.volume < 0:
         mesh.invert()
+
+
+def _flip_inverted_bodies(mesh: trimesh.Trimesh) -> None:
+    """Turn inside out, in place, each body of ``mesh`` that is closed, consistently wound, of at least 4 faces
+    and of negative volume: what ``trimesh.repair.fix_inversion(mesh, multibody=True)`` does, in the same
+    face order, with one sort over all bodies instead of a loop over them. (That loop took 20-70 ms on
+    meshes of a few thousand faces and many small bodies, most of their preparation.)"""
+    faces = mesh.faces.view(np.ndarray)
+    count = len(faces)
+    adjacency = np.asarray(mesh.face_adjacency, dtype=np.int64).reshape(-1, 2)
+    graph = csr_matrix((np.ones(len(adjacency), dtype=bool), (adjacency[:, 0], adjacency[:, 1])), shape=(count, count))
+    bodies, label = connected_components(graph, directed=False)
+    start = faces.ravel()
+    end = faces[:, [1, 2, 0]].ravel()
+    low, high, body = np.minimum(start, end), np.maximum(start, end), np.repeat(label, 3)
+    order = np.lexsort((high, low, body))
+    edge = np.stack([body[order], low[order], high[order]])
+    new_run = np.ones(len(order), dtype=bool)
+    new_run[1:] = (edge[:, 1:] != edge[:, :-1]).any(axis=0)
+    run_start = np.flatnonzero(new_run)
+    run_length = np.diff(np.append(run_start, len(order)))
+    run_body = body[order][run_start]
+    # trimesh's is_watertight per body: every edge of the body twice, the two running opposite ways.
+    pairs = run_start[run_length == 2]
+    opposite = end[order][pairs] == start[order][pairs + 1]
+    sound = np.bincount(label, minlength=bodies) >= 4
+    sound &= np.bincount(run_body, weights=run_length != 2, minlength=bodies) == 0
+    sound &= np.bincount(run_body[run_length == 2], weights=~opposite, minlength=bodies) == 0
+    if not sound.any():
+        return
+    vertices = mesh.vertices.view(np.ndarray)
+    crosses = mesh.triangles_cross
+    x = vertices[:, 0]
+    signed = crosses[:, 0] * (np.take(x, faces[:, 0]) + np.take(x, faces[:, 1]) + np.take(x, faces[:, 2]))
+    flip = (sound & (np.bincount(label, weights=signed, minlength=bodies) < 0.0))[label]
+    if not flip.any():
+        return
+    normals = None
+    if "face_normals" in mesh._cache:
+        normals = mesh.face_normals.copy()
+        normals[flip] *= -1.0
+    mesh.faces[flip] = np.fliplr(mesh.faces[flip])
+    if normals is not None:
+        mesh.face_normals = normals
