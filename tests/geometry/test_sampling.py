@@ -93,3 +93,31 @@ def test_a_thinned_hull_surface_cloud_keeps_its_hull_points_first_then_its_own_s
     thin = thin_hull_surface(cloud, 16)
     assert ConvexHull(thin).volume == pytest.approx(turned.volume, rel=1e-6)
     np.testing.assert_array_equal(thin[8:], cloud[8:16])
+
+
+def test_a_cloud_made_from_a_mesh_is_thinned_from_its_known_hull_without_qhull(monkeypatch):
+    """A ``hull_surface`` cloud a prepared body made is noted with its hull's size, so thinning it runs no qhull
+    and takes its first points, the mesh's hull vertices, for its hull; where qhull marks just those (a box,
+    an irregular mesh), both thin it alike. A cloud made elsewhere (a store's) still goes through qhull."""
+    import scipy.spatial
+
+    import physdyn.geometry.sampling as sampling
+
+    box = trimesh.creation.box((0.1, 0.2, 0.3))
+    box.apply_transform(trimesh.transformations.random_rotation_matrix(np.random.default_rng(5).random(3)))
+    for mesh, count in ((box, 16), (_irregular_mesh(), 24)):
+        body = prepare_body(mesh)
+        cloud = body.points_body(64, "hull_surface")
+        hull_size = len(body.spec.body_vertices())
+        assert sampling._HULL_FIRST[cloud.tobytes()] == min(hull_size, 64)
+        with monkeypatch.context() as patched:
+            patched.setattr(scipy.spatial, "ConvexHull", None)  # any qhull run would fail
+            known = sampling.thin_hull_surface(cloud, count)
+        copy = cloud.copy()
+        copy[-1] += np.float32(1e-6)  # another cloud: not noted, so qhull thins it
+        assert copy.tobytes() not in sampling._HULL_FIRST
+        qhull = sampling.thin_hull_surface(copy, count)
+        np.testing.assert_array_equal(known[:-1], qhull[:-1])
+        kept = min(hull_size, count)
+        assert {tuple(p) for p in known[:kept]} <= {tuple(p) for p in cloud[:hull_size]}
+        np.testing.assert_array_equal(known[kept:], cloud[hull_size:hull_size + count - kept])

@@ -1,0 +1,116 @@
+"""Thinning a cloud with its hull known: a ``hull_surface`` cloud is built with its mesh's hull vertices first,
+so at prediction those can be taken as its hull instead of running qhull (physdyn/geometry/sampling.py,
+``thin_hull_surface``). Does that thin as qhull's merged hull does, what does it save, and does it change
+the ``fast`` model's accuracy? (docs/ablations.md: "Reading the cloud where the push ends", eighteenth
+session, measured the first question and did not build it; "Thinning from the known hull", twenty-second
+session, measured the other two and built it.)
+
+    python benchmarks/studies/thin_known_hull.py clouds [FOLDER ...] [--points 256] [--count 64]
+    python benchmarks/studies/thin_known_hull.py accuracy CKPT
+
+``clouds``: for each mesh (default: pybullet_data's random_urdfs 000-999; the eighteenth session's folders
+were runs/frontier/pybullet/meshes_60 runs/external_val_100/meshes runs/robosuite/meshes), its prepared
+body's ``hull_surface`` cloud: whether qhull (``THIN_QHULL_OPTIONS``, facets merged within 1e-7) marks exactly
+its first min(H, N) points, whether the thinned clouds are equal, and the time of each thinning.
+``accuracy``: ``fast_variants.py sets`` (every push of the sets a choice may be made on) with clouds thinned
+by qhull, then from their known hull. The frontier's wheel set is read by neither.
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+
+def clouds(folders: list[str], points: int, count: int) -> None:
+    from scipy.spatial import ConvexHull, QhullError
+
+    import physdyn.geometry.sampling as sampling
+    from physdyn.errors import PhysdynError
+    from physdyn.predict.body import prepare_body
+
+    if not folders:
+        import pybullet_data
+
+        folders = [f"{pybullet_data.getDataPath()}/random_urdfs"]
+    sampling.farthest_point_sample(np.random.default_rng(0).random((8, 3)), 4)  # open3d's first import is no thinning's
+    for folder in folders:
+        files = sorted(glob.glob(f"{folder}/*.obj") + glob.glob(f"{folder}/*.stl") + glob.glob(f"{folder}/*/*.obj"))
+        made, same_marks, same_thinned, spent = 0, 0, 0, np.zeros(2)
+        for path in files:
+            try:
+                body = prepare_body(path)
+            except PhysdynError:
+                continue
+            cloud = body.points_body(points, "hull_surface")
+            first = min(len(body.spec.body_vertices()), points)
+            t0 = time.perf_counter()
+            known = sampling.thin_hull_surface(cloud, count)  # the cloud was noted when it was made
+            t1 = time.perf_counter()
+            sampling._HULL_FIRST.pop(cloud.tobytes())
+            qhull = sampling.thin_hull_surface(cloud, count)
+            spent += (t1 - t0, time.perf_counter() - t1)
+            on_hull = np.zeros(len(cloud), dtype=bool)
+            try:
+                on_hull[ConvexHull(cloud.astype(np.float64), qhull_options=sampling.THIN_QHULL_OPTIONS).vertices] = True
+            except (QhullError, ValueError):
+                on_hull[:] = True
+            made += 1
+            same_marks += bool(on_hull[:first].all() and not on_hull[first:].any())
+            same_thinned += bool(np.array_equal(known, qhull))
+            if not on_hull[:first].all() or on_hull[first:].any():
+                print(f"  differ {path}: H {first}, qhull drops {int((~on_hull[:first]).sum())} of them "
+                      f"and adds {int(on_hull[first:].sum())} samples")
+        print(f"{folder}: {made} clouds of {points} points ({len(files) - made} meshes refused), thinned to {count}")
+        print(f"  qhull marks exactly the first min(H, N) points: {same_marks} of {made}")
+        print(f"  the thinned clouds are equal: {same_thinned} of {made}")
+        print(f"  ms a cloud: known hull {1000 * spent[0] / max(made, 1):.3f}, qhull {1000 * spent[1] / max(made, 1):.3f}",
+              flush=True)
+
+
+def accuracy(checkpoint: str) -> None:
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import fast_variants
+
+    import physdyn.sim.body as sim_body
+
+    for name, path in list(fast_variants.STUDY_SETS.items()):
+        if not Path(path).exists():
+            print(f"({name}: no store at {path}; left out)")
+            fast_variants.STUDY_SETS.pop(name)
+    note = sim_body.note_hull_first
+    print("thinned by qhull:")
+    sim_body.note_hull_first = lambda points, count: None  # what notes each cloud a body makes
+    try:
+        fast_variants.sets([checkpoint])
+    finally:
+        sim_body.note_hull_first = note
+    print("thinned from the known hull:")
+    fast_variants.sets([checkpoint])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+    c = sub.add_parser("clouds")
+    c.add_argument("folders", nargs="*")
+    c.add_argument("--points", type=int, default=256, help="the cloud's size (the shipped models': 256)")
+    c.add_argument("--count", type=int, default=64, help="thinned to (the fast model's PointNets: 64)")
+    a = sub.add_parser("accuracy")
+    a.add_argument("checkpoint")
+    args = parser.parse_args()
+    warnings.simplefilter("ignore")
+    if args.command == "clouds":
+        clouds(args.folders, args.points, args.count)
+    else:
+        accuracy(args.checkpoint)
+
+
+if __name__ == "__main__":
+    main()
