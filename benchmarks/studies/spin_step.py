@@ -34,9 +34,8 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from unwrapped_turn import _stand_ins, load_parts, predict  # noqa: E402
+from unwrapped_turn import load_parts, predict  # noqa: E402
 
-_stand_ins()
 from physdyn.geometry.rotations import quat_to_matrix  # noqa: E402
 from physdyn.models import outcome_correction as oc  # noqa: E402
 from physdyn.models.topple_pointnet import travel_turn  # noqa: E402

@@ -20,48 +20,18 @@ wrapped to [-pi, pi]: it cannot say "a fifth more turn". Kinds:
     python benchmarks/studies/unwrapped_turn.py evaluate --out runs/turn/uc.npz --runs C_s0_C.pt C_s1_C.pt C_s2_C.pt
 
 (runs/turn/urdf.npz: the same export with runs/urdf_train/urdf_160_999_x40_hull256.zarr alone as --train.)
-Training needs torch and numpy only: where zarr or trimesh are missing (a GPU machine), empty stand-ins are
-imported for them, which the training never touches.
+Training needs torch and numpy only (a GPU machine has no zarr or trimesh): the package modules it imports
+at the top import neither.
 """
 import argparse
-import importlib.abc
-import importlib.machinery
-import importlib.util
 import sys
 import time
-import types
 
 import numpy as np
 import torch
 
-
-def _stand_ins() -> None:
-    missing = [m for m in ("zarr", "trimesh", "numcodecs") if importlib.util.find_spec(m) is None]
-    if not missing:
-        return
-
-    class Stub(types.ModuleType):
-        def __getattr__(self, name):
-            if name.startswith("__"):
-                raise AttributeError(name)
-            return Stub(f"{self.__name__}.{name}")
-
-    class Finder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
-        def find_spec(self, name, path, target=None):
-            return importlib.machinery.ModuleSpec(name, self, is_package=True) if name.split(".")[0] in missing else None
-
-        def create_module(self, spec):
-            return Stub(spec.name)
-
-        def exec_module(self, module):
-            module.__path__ = []
-
-    sys.meta_path.insert(0, Finder())
-
-
-_stand_ins()
-from physdyn.geometry.rotations import quat_conjugate, quat_multiply, wrap_angle  # noqa: E402
-from physdyn.models import outcome_correction as oc  # noqa: E402
+from physdyn.geometry.rotations import quat_conjugate, quat_multiply, wrap_angle
+from physdyn.models import outcome_correction as oc
 
 C = 0.5  # rad: B's target is the turn's miss over |the roll-out's turn| + C, so small turns keep a scale
 

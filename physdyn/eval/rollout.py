@@ -32,7 +32,8 @@ class RolloutResult:
     angular_velocity (B, T, 3): the state at steps 0..S.
     topple_probability (B, T) or None: the probability that the object has toppled by step t (the model's
     output at step t-1, which predicts the label of step t; 0 at step 0, where nothing has toppled yet).
-    delta_* (B, S, 3): the predicted change from step t to t+1 (``delta_rotation`` world axis-angle).
+    delta_* (B, S, 3): the predicted change from step t to t+1 (``delta_rotation`` world axis-angle); None
+    from ``rollout(..., with_changes=False)``, whose caller reads the states only.
     fed_linear_velocity, fed_angular_velocity (B, S, 3): the velocities the predictor received at step t
     (its own roll-out, or the truth during a warm start).
     """
@@ -42,10 +43,10 @@ class RolloutResult:
     linear_velocity: np.ndarray
     angular_velocity: np.ndarray
     topple_probability: np.ndarray | None
-    delta_linear_velocity: np.ndarray
-    delta_angular_velocity: np.ndarray
-    delta_position: np.ndarray
-    delta_rotation: np.ndarray
+    delta_linear_velocity: np.ndarray | None
+    delta_angular_velocity: np.ndarray | None
+    delta_position: np.ndarray | None
+    delta_rotation: np.ndarray | None
     fed_linear_velocity: np.ndarray
     fed_angular_velocity: np.ndarray
     extra: dict[str, Any] = field(default_factory=dict)
@@ -54,7 +55,7 @@ class RolloutResult:
     @property
     def num_steps(self) -> int:
         """S, the number of predicted transitions."""
-        return self.delta_position.shape[1]
+        return self.com_position.shape[1] - 1
 
     def deltas(self) -> dict[str, np.ndarray]:
         return {k: getattr(self, k) for k in DELTA_KEYS}
@@ -162,6 +163,7 @@ def rollout(
     spin_inertia: np.ndarray | None = None,
     body_inertia: np.ndarray | None = None,
     lengths: np.ndarray | None = None,
+    with_changes: bool = True,
 ) -> RolloutResult:
     """Roll a predictor out for ``steps`` transitions from the state at step 0, B sequences at once.
 
@@ -192,6 +194,8 @@ def rollout(
     body_inertia: optional (B, 3, 3) I / m of each body in world axes at step 0, for a topple classifier
     that simulates the cloud's hull (``fit-topple --physics``; ``physdyn.geometry.mass.world_inertia_per_mass``)
     and for ``model.sim_seconds``; without it those roll-outs take the hull's inertia.
+    ``with_changes=False``: the result's ``delta_*`` are None, for a caller that reads the states only
+    (``Predictor``): an outcome correction then does not work out the corrected steps' changes again.
     A model with ``model.sim_seconds`` > 0 takes its first k steps (those seconds at its rate) from PyBullet run on the hull of
     ``topple_points_body`` (default ``points_body``) and continues from the simulated state, its recurrent
     state warmed up on the simulated velocities and orientations (``simulated_start``); a caller's warm
@@ -277,10 +281,14 @@ def rollout(
             body = correction.body_clouds(_numpy(points_body))  # checks the size it reads
             thinned = correction.thinned_from and correction.num_points in turned_thinned
             clouds = turned_thinned[correction.num_points] if thinned else _oriented(body, q0)
-        states = {**states, **{k: np.array(v) for k, v in deltas.items()}}
+        if with_changes:
+            states = {**states, **{k: np.array(v) for k, v in deltas.items()}}
         correct_rollout(model, states, _numpy(lin_vel0).reshape(B, 3), _numpy(ang_vel0).reshape(B, 3), given_spin_inertia,
                         points, toppled, lengths, clouds)
-        deltas = {k: states.pop(k) for k in DELTA_KEYS}
+        if with_changes:
+            deltas = {k: states.pop(k) for k in DELTA_KEYS}
+    if not with_changes:
+        deltas = dict.fromkeys(DELTA_KEYS)
     return RolloutResult(**states, topple_probability=probability, **deltas, fed_linear_velocity=fed_v,
                          fed_angular_velocity=fed_w, toppled=toppled)
 

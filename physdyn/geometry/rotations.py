@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -64,7 +66,9 @@ def quat_multiply(a_xyzw: np.ndarray, b_xyzw: np.ndarray) -> np.ndarray:
     order. A prediction of one push makes a dozen of these small products: gathered in a few array operations
     (``GATHERED_AT_MOST``), 15 against 23 us for one pair, 24 against 55 us for a sequence."""
     a, b = np.asarray(a_xyzw, dtype=np.float64), np.asarray(b_xyzw, dtype=np.float64)
-    if np.prod(np.broadcast_shapes(a.shape, b.shape)) > 4 * GATHERED_AT_MOST:  # written out: fewer passes over a large batch's memory
+    # (the size by math.prod: numpy's prod of a shape cost 11 of a pair's 30 us)
+    size = a.size if a.shape == b.shape else math.prod(np.broadcast_shapes(a.shape, b.shape))
+    if size > 4 * GATHERED_AT_MOST:  # written out: fewer passes over a large batch's memory
         ax, ay, az, aw = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
         bx, by, bz, bw = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
         out = np.empty(np.broadcast_shapes(a.shape, b.shape))
@@ -86,6 +90,17 @@ def rotvec_to_quat(rotvec: np.ndarray) -> np.ndarray:
     """Exp: axis-angle (..., 3) -> quaternion (..., 4)."""
     r = np.asarray(rotvec, dtype=np.float64)
     return Rotation.from_rotvec(r.reshape(-1, 3)).as_quat().reshape(r.shape[:-1] + (4,))
+
+
+def turn_about_vertical(angle: np.ndarray, q_xyzw: np.ndarray) -> np.ndarray:
+    """Exp(angle z) * q: each rotation (..., 4) turned by ``angle`` (...) radians about the world vertical.
+    ``quat_multiply(rotvec_to_quat(angle * z), q)`` written out for that axis, without scipy's general
+    Exp (the same to rounding; a third of its cost on one push's steps)."""
+    half = 0.5 * np.asarray(angle, dtype=np.float64)
+    c, s = np.cos(half), np.sin(half)
+    q = np.asarray(q_xyzw, dtype=np.float64)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack([c * x - s * y, c * y + s * x, c * z + s * w, c * w - s * z], axis=-1)
 
 
 def quat_to_rotvec(q_xyzw: np.ndarray) -> np.ndarray:

@@ -28,7 +28,7 @@ from typing import Any, Callable
 import numpy as np
 import torch
 
-from physdyn.geometry.rotations import quat_conjugate, quat_multiply, rotvec_to_quat, world_delta_rotvec, wrap_angle
+from physdyn.geometry.rotations import quat_conjugate, quat_multiply, turn_about_vertical, world_delta_rotvec, wrap_angle
 from physdyn.models.topple_pointnet import (MIN_STEPS, PUSHES_PER_PASS, POINT_WIDTHS, ToppleNet, cloud_spin_inertia,
                                            numpy_forward, numpy_layers, thinned_clouds, travel_scalars, travel_turn)
 
@@ -63,7 +63,8 @@ class OutcomeNet(torch.nn.Module):
 
 def yaw_of(q_xyzw: np.ndarray) -> np.ndarray:
     """The turn about the world vertical of (..., 4) rotations, radians."""
-    x, y, z, w = np.moveaxis(np.asarray(q_xyzw, dtype=np.float64), -1, 0)
+    q = np.asarray(q_xyzw, dtype=np.float64)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]  # (np.moveaxis cost a quarter of a call)
     return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
@@ -199,7 +200,7 @@ class OutcomeCorrection:
             p[idx, :, :2] += fraction[:b, :, None] * shift[:, None, :]
             v[idx, :, :2] += rate[:b, :, None] * shift[:, None, :]
             spin = fraction[b:] * fix[:, 2:3]  # (b, T) radians about the world vertical through the centre of mass
-            q[idx] = quat_multiply(rotvec_to_quat(spin[..., None] * np.array([0.0, 0.0, 1.0])), q[idx])
+            q[idx] = turn_about_vertical(spin, q[idx])
             w[idx, :, 2] += rate[b:] * fix[:, 2:3]
         return corrected
 

@@ -28,7 +28,6 @@ from typing import Any
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
-from physdyn.data.windows import store_world_inertia, subsample_indices, world_oriented_points
 from physdyn.errors import PhysdynError
 
 FOOTPRINT_DEPTH = 0.005  # m: cloud points this close to the lowest one form the footprint
@@ -310,6 +309,9 @@ def best_threshold(probability: np.ndarray, label: np.ndarray) -> float:
 def store_features(store: Any, sims: np.ndarray, num_points: int | None, friction: float, seed: int = 0,
                    physics: bool = False) -> np.ndarray:
     """``all_features`` of a store's simulations at step 0, from the cloud the model would see."""
+    # zarr and trimesh behind it: only fitting reads a store, and a prediction (or a study training a
+    # correction on a machine without them) imports this module without it
+    from physdyn.data.windows import store_world_inertia, subsample_indices, world_oriented_points
 
     sims = np.asarray(sims, dtype=np.int64)
     first = store.start[sims]

@@ -269,7 +269,7 @@ class Predictor:
             rolled = rollout(self.model, points[idx], q0[idx], p0[idx], v0[idx], w0[idx], longest - 1,
                              topple_points_body=None if topple_points is None else topple_points[idx],
                              spin_inertia=spin_inertia[idx], body_inertia=body_inertia[idx],
-                             lengths=np.array([steps[r] for r in idx]))
+                             lengths=np.array([steps[r] for r in idx]), with_changes=False)
             for b, r in enumerate(idx):
                 T = steps[r]
                 out = {k: None if v is None else v[:T] for k, v in rolled.sequence(b).items()}

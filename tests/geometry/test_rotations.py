@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_matrix
+from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_matrix, rotvec_to_quat, turn_about_vertical
 
 
 @pytest.mark.parametrize("shape", [(4,), (1, 4), (6, 4), (2, 5, 4), (0, 4), (300, 4), (3, 100, 4)])  # both ways
@@ -50,3 +50,16 @@ def test_a_quaternion_of_another_length_is_refused():
     for shape in ((5,), (2, 5), (3,)):
         with pytest.raises(ValueError, match="quaternions"):
             quat_to_matrix(np.ones(shape))
+
+
+def test_a_turn_about_the_vertical_is_the_general_product_with_its_rotation():
+    rng = np.random.default_rng(4)
+    q = rng.normal(size=(3, 7, 4))
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    angle = rng.uniform(-7.0, 7.0, (3, 7))
+    angle[0, :3] = [0.0, 1e-9, -3e-5]  # scipy's Exp takes a series there
+    general = quat_multiply(rotvec_to_quat(angle[..., None] * np.array([0.0, 0.0, 1.0])), q)
+    np.testing.assert_allclose(turn_about_vertical(angle, q), general, atol=1e-15)
+    turned = Rotation.from_quat(turn_about_vertical(angle, q).reshape(-1, 4))
+    yaw = Rotation.from_rotvec(angle.reshape(-1, 1) * np.array([0.0, 0.0, 1.0]))
+    np.testing.assert_allclose(turned.as_matrix(), (yaw * Rotation.from_quat(q.reshape(-1, 4))).as_matrix(), atol=1e-12)

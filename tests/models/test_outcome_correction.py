@@ -118,6 +118,12 @@ def test_what_its_networks_trained_on_is_what_a_roll_out_gives_them(fitted_point
     np.testing.assert_allclose(np.einsum("bij,bj->bi", turn, shift)[:, :2], fix[:, :2], atol=1e-6)
     np.testing.assert_allclose(yaw_of(quat_multiply(moved.orientation_xyzw[:, -1],
                                                     quat_conjugate(plain.orientation_xyzw[:, -1]))), fix[:, 2], atol=1e-6)
+    # a caller that reads the states only (Predictor) gets the same states, and no changes worked out again
+    states_only = rollout(model, store.points[store.shape_id[sims]], q0, p0, v0, w0, horizon, with_changes=False, **kwargs)
+    for key in ("com_position", "orientation_xyzw", "linear_velocity", "angular_velocity"):
+        np.testing.assert_array_equal(getattr(states_only, key), getattr(moved, key), err_msg=key)
+    assert states_only.delta_rotation is None and states_only.num_steps == moved.num_steps == horizon
+    np.testing.assert_allclose(moved.delta_position, np.diff(moved.com_position, axis=1), atol=1e-12)
 
 
 def test_an_input_every_training_push_shared_reads_as_it_did_in_training():
@@ -407,3 +413,30 @@ def x_spin(mesh) -> float:
 
     spec = prepare_body(mesh).spec
     return float(vertical_inertia(spec.inertia_diag, spec.principal_axes, spec.mass, np.array([0.0, 0.0, 0.0, 1.0])))
+
+
+def test_the_correction_and_topple_pointnet_import_no_store_or_mesh_library():
+    """What a correction needs to train and predict loads without zarr or trimesh (a GPU machine for the studies
+    has neither): their modules' own imports, followed through the package, reach neither."""
+    import ast
+    import importlib.util
+
+    seen, todo, reached = set(), ["physdyn.models.outcome_correction"], set()
+    while todo:
+        name = todo.pop()
+        if name in seen:
+            continue
+        seen.add(name)
+        tree = ast.parse(open(importlib.util.find_spec(name).origin).read())
+        for node in tree.body:  # the module's own level: what importing it runs
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module] if isinstance(node, ast.ImportFrom) and node.module else [])
+            for imported in names:
+                reached.add(imported.split(".")[0])
+                if imported.startswith("physdyn."):
+                    todo.append(imported)
+                    parent = imported.rsplit(".", 1)[0]
+                    todo.extend(p for p in (parent,) if p != "physdyn" and importlib.util.find_spec(p).origin.endswith("__init__.py"))
+    assert "physdyn.models.topple_classifier" in seen and "torch" in reached  # it did follow the package
+    assert not {"zarr", "trimesh", "numcodecs", "pybullet", "open3d"} & reached, sorted(reached)
+    assert not any(n.startswith("physdyn.data") for n in seen), sorted(seen)
