@@ -20,7 +20,7 @@ from physdyn.predict.predictor import load_predictor
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("store", nargs="?", default="data/quickstart.zarr")
-    parser.add_argument("--checkpoint", default=None, help="default: the bundled model")
+    parser.add_argument("--checkpoint", default="bundled", help="default: the bundled model")
     parser.add_argument("--split", default="test")
     args = parser.parse_args()
     model = load_predictor(args.checkpoint).model

@@ -125,7 +125,7 @@ def external_store(work: Path, random_count: int, pushes: int, random_from: int 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--checkpoint", default=None, help="default: the bundled model")
+    parser.add_argument("--checkpoint", default="bundled", help="default: the bundled model")
     parser.add_argument("--work", default="runs/external")
     parser.add_argument("--random", type=int, default=30, help="random_urdfs objects to add to the named ones")
     parser.add_argument("--pushes", type=int, default=10, help="pushes per mesh")
@@ -193,7 +193,7 @@ def main() -> None:
         "model_over_sliding": med("model_m") / med("slide_m"),
         "final_rotation_deg": {"model": med("model_deg"), "no_rotation": med("no_rotation_deg")},
         "topple_accuracy": float(correct), "majority_accuracy": float(max(toppled.mean(), 1 - toppled.mean())),
-        "seconds": seconds, "checkpoint": args.checkpoint or "bundled",
+        "seconds": seconds, "checkpoint": args.checkpoint,
     }
     print(f"{figures['meshes']} external meshes, {len(rows)} pushes ({len(nt)} do not topple), predicted through "
           f"Predictor.predict in {seconds:.0f} s")

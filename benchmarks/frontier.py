@@ -1,7 +1,7 @@
 """The accuracy-cost frontier: physdyn's predictors against PyBullet at five physics steps, on meshes new to
 the model, every figure measured in one run on this machine (issue 26).
 
-    python benchmarks/frontier.py                                # both sets, the bundled model and its networks alone
+    python benchmarks/frontier.py                                # both sets, fast (the default), bundled and the contact prior
     python benchmarks/frontier.py --quick                        # a smoke check: a few meshes, about a minute
     python benchmarks/frontier.py --predictor mine=runs/X/best.ckpt --predictor bundled=bundled
     python benchmarks/frontier.py --sets wheel --meshes 30 --pushes 10 --out reports/frontier/wheel.md
@@ -97,7 +97,7 @@ from physdyn.sim.world import PhysicsWorld  # noqa: E402
 SETS = ("pybullet", "wheel")
 STEPS_HZ = (960, 480, 240, 120, 60)  # PyBullet's physics steps, 1/hz s
 CEILINGS = (("surface", 256), ("hull_surface", 256), ("hull_surface", 512), ("hull_surface", 1024))
-DEFAULT_PREDICTORS = ("bundled=bundled", "networks=networks")
+DEFAULT_PREDICTORS = ("fast=fast", "bundled=bundled", "contact_prior=contact_prior")  # the shipped ones and the planner's screen
 # Costs are this process's CPU time (one torch thread; PyBullet runs in-process): the machine is shared, and
 # wall time would charge other jobs' load to whichever row ran beside them.
 CLOCK = time.process_time
@@ -402,7 +402,7 @@ def load_predictors(specs: list[str], work: Path) -> dict[str, Predictor]:
         if not (sep and name and checkpoint):
             raise SystemExit(f"--predictor {spec!r}: use NAME=CHECKPOINT (a path, 'bundled', 'networks' or 'contact_prior')")
         if checkpoint == "bundled":
-            predictors[name] = load_predictor()
+            predictors[name] = load_predictor("bundled")
         elif checkpoint == "contact_prior":
             predictors[name] = contact_prior_predictor()
         elif checkpoint == "networks":

@@ -73,7 +73,7 @@ def goals_from_store(store, count: int) -> list[dict]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--checkpoint", default=None, help="default: the bundled model")
+    parser.add_argument("--checkpoint", default="bundled", help="default: the bundled model")
     parser.add_argument("--work", default="runs/external", help="where benchmarks/external_meshes.py keeps its store")
     parser.add_argument("--random", type=int, default=30)
     parser.add_argument("--pushes", type=int, default=10)

@@ -195,7 +195,7 @@ def test_test_and_predict_batch_killed_leave_their_output_whole_or_absent(tiny_s
 
 @pytest.fixture(scope="module")
 def prediction():
-    """A real prediction of the bundled model (what `physdyn predict` writes)."""
+    """A real prediction of the default model (what `physdyn predict` writes)."""
     import tempfile
 
     import trimesh

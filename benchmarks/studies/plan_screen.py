@@ -66,7 +66,7 @@ def main() -> None:
     torch.set_num_threads(1)
     warnings.simplefilter("ignore")
     goals = goals_from_store(external_store(Path(args.work), 30, 10), args.goals)
-    predictor = load_predictor()
+    predictor = load_predictor("bundled")
     table = variants(predictor, load_predictor(args.hull_checkpoint) if args.hull_checkpoint else None, load_predictor("fast"))
     names = args.variants or list(table)
     search, factor, correct = planner.cross_entropy_search, planner.SCREEN_FACTOR, True

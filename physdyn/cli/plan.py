@@ -46,7 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scale", type=float, default=1.0, help="multiply the mesh's coordinates by this to get metres (default: %(default)s)")
     p.add_argument("--orientation", nargs=4, type=float, metavar=("QX", "QY", "QZ", "QW"),
                    help="resting orientation of the mesh frame, a quaternion (default: the mesh as it is)")
-    p.add_argument("--checkpoint", metavar="CKPT", help="a .ckpt written by `physdyn fit` (default: the bundled model)")
+    p.add_argument("--checkpoint", metavar="CKPT", help="a .ckpt written by `physdyn fit`, or 'fast' / 'bundled' (default: fast)")
     p.add_argument("--out", metavar="FILE", help="write the plan here (.json)")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument("--verify", action="store_true",

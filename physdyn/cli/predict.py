@@ -53,8 +53,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="resting orientation of the mesh frame, a quaternion (default: the mesh as it is)")
     p.add_argument("--scale", type=float, default=1.0, help="multiply the mesh's coordinates by this to get metres "
                    "(0.001 for millimetres; default: %(default)s)")
-    p.add_argument("--checkpoint", metavar="CKPT", help="a .ckpt written by `physdyn fit`, or 'fast' for the shipped "
-                   "model that simulates nothing (default: the bundled model; docs/model-card.md)")
+    p.add_argument("--checkpoint", metavar="CKPT", help="a .ckpt written by `physdyn fit`, or a shipped model: 'fast' "
+                   "(the default: nothing simulated) or 'bundled' (simulates its first 0.4 s and a topple roll-out; "
+                   "docs/model-card.md)")
     p.add_argument("--out", metavar="FILE", help="write the trajectory here: .json, .npz or .csv")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument("--compare-sim", action="store_true",

@@ -1,3 +1,3 @@
-"""Prediction for a user's mesh: ``Predictor`` and ``load_predictor`` (``predictor``, the bundled model by
-default), rigid bodies from mesh files (``body``), the simulator beside the model (``simulator``), and the
+"""Prediction for a user's mesh: ``Predictor`` and ``load_predictor`` (``predictor``, the shipped ``fast``
+model by default), rigid bodies from mesh files (``body``), the simulator beside the model (``simulator``), and the
 prediction files, JSON, .npz or .csv (``prediction_files``)."""

@@ -1,6 +1,7 @@
 """Predicting how a user's mesh moves after a push.
 
-``load_predictor()`` gives a ``Predictor`` around a trained ``DynamicsModel`` (the bundled one by default);
+``load_predictor()`` gives a ``Predictor`` around a trained ``DynamicsModel`` (the shipped ``fast`` one by default:
+nothing simulated, the accuracy-cost frontier's point, docs/performance.md);
 ``Predictor.predict(mesh, lin_vel, ang_vel, seconds)`` places the object at rest on the ground as the
 conventions say (docs/conventions.md, "Initial condition"), rolls the model out and returns a dict with
 the keys of a prediction file ("Prediction output"); ``predict_many`` does R requests as batches.
@@ -42,6 +43,10 @@ from physdyn.sim.cloud_body import forget_clouds
 from physdyn.sim.trajectory import resting_com_positions
 
 BUNDLED_CHECKPOINT = SHIPPED["bundled"]
+# The default: the shipped model no PyBullet step beats on both accuracy and cost, on new meshes (issue #26,
+# docs/performance.md); "bundled", which simulates inside each prediction, is dominated by PyBullet at 1/240 s.
+DEFAULT_MODEL = "fast"
+DEFAULT_CHECKPOINT = SHIPPED[DEFAULT_MODEL]
 DEFAULT_NUM_POINTS = 1024
 MAX_LINEAR_SPEED = 50.0  # m/s; training pushes are 0.5-2 m/s
 MAX_ANGULAR_SPEED = 500.0  # rad/s
@@ -438,14 +443,16 @@ def contact_prior_predictor(physics: Any = None, rate_hz: float = 15.0, num_poin
 
 def load_predictor(checkpoint: Any = None, physics: Any = None, device: str = "cpu") -> Predictor:
     """A ``Predictor`` from a `physdyn fit` checkpoint path, a loaded ``DynamicsModel``, a shipped model's
-    name ("fast": nothing simulated, docs/model-card.md; "bundled"), or (None) the model bundled with
-    physdyn, on ``device`` (cpu, cuda or auto). Raises a one-line ``PhysdynError`` for anything else."""
+    name ("fast": nothing simulated, docs/model-card.md; "bundled": a simulated start and a topple roll-out
+    in PyBullet), or (None) the default, the shipped ``fast`` model, on ``device`` (cpu, cuda or auto). Raises a
+    one-line ``PhysdynError`` for anything else."""
 
     if checkpoint is None:
-        if not BUNDLED_CHECKPOINT.is_file():
-            raise PhysdynError(f"no bundled model in this installation ({BUNDLED_CHECKPOINT} is missing); "
+        # the shipped file itself: a file named "fast" where the caller runs is theirs to name, not the default
+        if not DEFAULT_CHECKPOINT.is_file():
+            raise PhysdynError(f"no shipped model in this installation ({DEFAULT_CHECKPOINT} is missing); "
                                "pass a checkpoint of `physdyn fit` with --checkpoint CKPT (load_predictor(path))")
-        return Predictor(load_checkpoint(BUNDLED_CHECKPOINT), name="bundled", physics=physics, device=device)
+        return Predictor(load_checkpoint(DEFAULT_CHECKPOINT), name=DEFAULT_MODEL, physics=physics, device=device)
     if hasattr(checkpoint, "encode_points") and hasattr(checkpoint, "step"):
         return Predictor(checkpoint, name="model", physics=physics, device=device)
     if not isinstance(checkpoint, (str, os.PathLike)):

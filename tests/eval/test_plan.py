@@ -29,7 +29,7 @@ IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
 def predictor():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return load_predictor()
+        return load_predictor("bundled")  # the tests of a screen made from networks need the hybrid's
 
 
 @pytest.fixture(scope="module")

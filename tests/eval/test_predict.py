@@ -191,11 +191,11 @@ def test_bad_values_are_refused_where_they_enter(checkpoint, meshes):
 
 
 
-def test_an_installation_without_the_bundled_model_says_so(tmp_path, monkeypatch):
+def test_an_installation_without_the_default_model_says_so(tmp_path, monkeypatch):
     import physdyn.predict.predictor as P
 
-    monkeypatch.setattr(P, "BUNDLED_CHECKPOINT", tmp_path / "bundled.ckpt")  # as if the asset were left out
-    with pytest.raises(PhysdynError, match="no bundled model.*--checkpoint"):
+    monkeypatch.setattr(P, "DEFAULT_CHECKPOINT", tmp_path / "fast.ckpt")  # as if the asset were left out
+    with pytest.raises(PhysdynError, match="no shipped model.*--checkpoint"):
         load_predictor()
 
 
@@ -275,20 +275,39 @@ def test_bad_input_exits_with_one_line_and_writes_nothing(case, checkpoint, mesh
     assert not [p for p in tmp_path.iterdir()]  # no temporary files either
 
 
-def test_the_bundled_model_ships_and_predicts_a_users_mesh(tmp_path):
-    """`physdyn predict` works right after install: the packaged checkpoint loads and rolls out."""
+@pytest.mark.parametrize("name", [None, "bundled"], ids=["default", "bundled"])
+def test_the_shipped_models_predict_a_users_mesh(name):
+    """`physdyn predict` works right after install: the packaged checkpoints load and roll out; the default is
+    ``fast`` (nothing simulated, the frontier's point: docs/performance.md), ``bundled`` is there by name."""
     import physdyn
-    from physdyn.predict.predictor import BUNDLED_CHECKPOINT
+    from physdyn.models.checkpoint_file import SHIPPED
 
-    assert BUNDLED_CHECKPOINT.is_file() and BUNDLED_CHECKPOINT.stat().st_size < 10e6  # "a few MB"
-    predictor = physdyn.load_predictor()
+    for path in SHIPPED.values():
+        assert path.is_file() and path.stat().st_size < 10e6  # "a few MB"
+    predictor = physdyn.load_predictor(name)
     mesh = Path(__file__).resolve().parents[2] / "examples" / "meshes" / "bracket_mm.obj"
     result = predictor.predict(str(mesh), [1.0, 0.0, 0.0], [0.0, 0.0, 2.0], seconds=2.0, scale=0.001)
-    assert result["checkpoint"] == "bundled" and len(result["time"]) == 2 * int(predictor.rate_hz) + 1
+    assert result["checkpoint"] == (name or "fast") and len(result["time"]) == 2 * int(predictor.rate_hz) + 1
     np.testing.assert_allclose(result["linear_velocity"][0], [1.0, 0.0, 0.0])
     assert np.isfinite(result["com_position"]).all()
     moved = np.linalg.norm(result["com_position"][-1, :2] - result["com_position"][0, :2])
     assert 0.01 < moved < 1.0  # a 1 m/s push on a plane with mu = 0.25 slides about 20 cm
+
+
+def test_the_default_prediction_runs_no_simulator(tmp_path, monkeypatch, capsys):
+    """`physdyn predict MESH` with no --checkpoint (and ``load_predictor()``) predicts with PyBullet refusing to run."""
+    from tests.conftest import refuse_pybullet
+
+    mesh = tmp_path / "part.obj"
+    trimesh.creation.box((0.1, 0.06, 0.04)).export(mesh)
+    refuse_pybullet(monkeypatch)
+    out = tmp_path / "part.json"
+    assert cli_main(["predict", str(mesh), "--lin-vel", "0.9", "0.1", "0", "--ang-vel", "0", "0", "3", "--out", str(out)]) == 0
+    written = read_prediction(out)
+    assert written["checkpoint"] == "fast" and not written["toppled"]
+    moved = np.linalg.norm(written["com_position"][-1, :2] - written["com_position"][0, :2])
+    assert 0.01 < moved < 1.0
+    assert load_predictor().predict(str(mesh), [0.9, 0.1, 0.0], [0.0, 0.0, 3.0], seconds=1.0)["checkpoint"] == "fast"
 
 
 def test_predict_many_equals_each_request_predicted_alone_in_any_chunking(checkpoint, meshes):
@@ -319,7 +338,7 @@ def test_predict_many_equals_each_request_predicted_alone_in_any_chunking(checkp
 def test_padded_batch_of_the_bundled_hybrid_equals_each_request_alone(meshes):
     """The bundled model simulates its first 0.4 s: a request shorter than that, padded into a batch with a
     longer one, still gets exactly its own roll-out (states, topple probabilities and verdict)."""
-    predictor = load_predictor()
+    predictor = load_predictor("bundled")
     files = [str(meshes / "box.obj"), str(meshes / "can.stl")]
     lin, ang, seconds = np.array([[1.2, 0.0, 0.0], [0.0, 0.8, 0.0]]), np.array([[0.0, 0.0, 2.0], [0.0, 0.0, -1.0]]), [0.2, 1.5]
     many = predictor.predict_many(files, lin, ang, seconds)

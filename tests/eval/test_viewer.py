@@ -22,7 +22,7 @@ CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 
 @pytest.fixture(scope="module")
 def prediction(tmp_path_factory):
-    """A real prediction of the bundled model, with the simulation beside it, for a mesh in millimetres."""
+    """A real prediction of the default model, with the simulation beside it, for a mesh in millimetres."""
     folder = tmp_path_factory.mktemp("viewer")
     mesh = trimesh.creation.box((80.0, 120.0, 200.0))
     mesh.apply_translation([300.0, -100.0, 50.0])  # mesh frame away from the centre of mass
