@@ -78,19 +78,19 @@ def accuracy(checkpoint: str) -> None:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import fast_variants
 
-    import physdyn.sim.body as sim_body
+    import physdyn.predict.body as predict_body
 
     for name, path in list(fast_variants.STUDY_SETS.items()):
         if not Path(path).exists():
             print(f"({name}: no store at {path}; left out)")
             fast_variants.STUDY_SETS.pop(name)
-    note = sim_body.note_hull_first
+    note = predict_body.note_hull_first
     print("thinned by qhull:")
-    sim_body.note_hull_first = lambda points, count: None  # what notes each cloud a body makes
+    predict_body.note_hull_first = lambda points, count: None  # what notes each cloud a prepared body makes
     try:
         fast_variants.sets([checkpoint])
     finally:
-        sim_body.note_hull_first = note
+        predict_body.note_hull_first = note
     print("thinned from the known hull:")
     fast_variants.sets([checkpoint])
 

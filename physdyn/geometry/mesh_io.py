@@ -299,7 +299,8 @@ def _orient(mesh: trimesh.Trimesh) -> None:
     except Exception:  # non-manifold face adjacency can defeat the graph traversal; leave it as it is
         return
     _flip_inverted_bodies(mesh)
-    # fix_normals flips by the sign of the signed volume, which is meaningless for an open surface.
+    # The flip goes by each closed body's signed volume, which is meaningless for an open surface: only a
+    # closed mesh is turned inside out as a whole.
     if mesh.is_watertight and mesh.volume < 0:
         mesh.invert()
 

@@ -83,8 +83,9 @@ def thin_hull_surface(points: np.ndarray, count: int) -> np.ndarray:
     meshes or turned boxes, and the few near-coplanar mesh vertices it drops lose under 1e-7 of the hull's
     volume. A flat cloud, which qhull refuses, is thinned whole.
 
-    A cloud this process built from a mesh (``note_hull_first``) skips qhull: its first points are the mesh's
-    hull vertices, and those are taken as its hull (qhull's took 0.8 ms of a 11 ms prediction of a new mesh).
+    A cloud a prediction built from its mesh (``PreparedBody.points_body`` notes it: ``note_hull_first``) skips
+    qhull: its first points are the mesh's hull vertices, and those are taken as its hull (qhull's took 0.8 ms
+    of a 11 ms prediction of a new mesh). A store's clouds are thinned by qhull, wherever they were made.
     On 962 of 970 clouds of random_urdfs 000-999 (256 points) qhull marks exactly those; on the other 8 its
     merging drops or keeps one near-coplanar vertex (benchmarks/studies/thin_known_hull.py)."""
     points = np.asarray(points, dtype=np.float32)

@@ -15,7 +15,7 @@ import trimesh
 from physdyn.geometry.mass import MassProperties, solid_mass_properties
 from physdyn.geometry.mesh_io import prepare_mesh
 from physdyn.geometry.rotations import matrix_to_quat
-from physdyn.geometry.sampling import note_hull_first, shape_points
+from physdyn.geometry.sampling import shape_points
 
 
 @dataclass
@@ -80,10 +80,8 @@ def body_surface_points(mesh: trimesh.Trimesh, spec: RigidBodySpec, num_points: 
     """(num_points, 3) float32 points of ``mesh`` in the body frame (mesh axes, origin at the centre of
     mass), as the stores hold them, in the representation ``method`` (geometry/sampling.py)."""
     hull = spec.body_vertices() + spec.com_mesh  # the hull the simulator collides with, already computed
-    points = (shape_points(mesh, num_points, method, oversample, seed, hull_vertices=hull) - spec.com_mesh).astype(np.float32)
-    if method == "hull_surface":
-        note_hull_first(points, min(len(hull), num_points))
-    return points
+    points = shape_points(mesh, num_points, method, oversample, seed, hull_vertices=hull)
+    return (points - spec.com_mesh).astype(np.float32)
 
 
 def rigid_body(mesh: trimesh.Trimesh, name: str, density: float, method: str = "exact", voxel_pitch: float = 0.025,

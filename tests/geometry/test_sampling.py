@@ -121,3 +121,9 @@ def test_a_cloud_made_from_a_mesh_is_thinned_from_its_known_hull_without_qhull(m
         kept = min(hull_size, count)
         assert {tuple(p) for p in known[:kept]} <= {tuple(p) for p in cloud[:hull_size]}
         np.testing.assert_array_equal(known[kept:], cloud[hull_size:hull_size + count - kept])
+    # a store's cloud (simulate, the viewer's rebuilt shapes) is not noted: training thins it by qhull wherever it was made
+    from physdyn.sim.body import body_surface_points, rigid_body
+
+    made = rigid_body(trimesh.creation.box((0.07, 0.05, 0.03)), "stored box", 1000.0)
+    stored = body_surface_points(made.mesh, made.spec, 64, 3, 0, "hull_surface")
+    assert stored.tobytes() not in sampling._HULL_FIRST
