@@ -58,7 +58,7 @@ def median_time(fn, repeats: int) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--checkpoint", help="a .ckpt of `physdyn fit` (default: the bundled model)")
+    parser.add_argument("--checkpoint", default="bundled", help="a .ckpt of `physdyn fit`, or fast / bundled (default: the bundled model)")
     parser.add_argument("--seconds", type=float, default=3.0)
     parser.add_argument("--device", default="cpu", help="cpu, cuda or auto")
     parser.add_argument("--batches", type=int, nargs="+", default=[64, 256, 1024, 4096])

@@ -51,9 +51,8 @@ def clouds(folders: list[str], points: int, count: int) -> None:
             cloud = body.points_body(points, "hull_surface")
             first = min(len(body.spec.body_vertices()), points)
             t0 = time.perf_counter()
-            known = sampling.thin_hull_surface(cloud, count)  # the cloud was noted when it was made
+            known = sampling.thin_hull_surface(cloud, count, body.hull_count(points))
             t1 = time.perf_counter()
-            sampling._HULL_FIRST.pop(cloud.tobytes())
             qhull = sampling.thin_hull_surface(cloud, count)
             spent += (t1 - t0, time.perf_counter() - t1)
             on_hull = np.zeros(len(cloud), dtype=bool)
@@ -79,18 +78,19 @@ def accuracy(checkpoint: str) -> None:
     import fast_variants
 
     import physdyn.predict.body as predict_body
+    import physdyn.predict.predictor as predictor_module
 
     for name, path in list(fast_variants.STUDY_SETS.items()):
         if not Path(path).exists():
             print(f"({name}: no store at {path}; left out)")
             fast_variants.STUDY_SETS.pop(name)
-    note = predict_body.note_hull_first
     print("thinned by qhull:")
-    predict_body.note_hull_first = lambda points, count: None  # what notes each cloud a prepared body makes
+    rollout = predictor_module.rollout
+    predictor_module.rollout = lambda *args, **kwargs: rollout(*args, **{**kwargs, "hull_counts": None})
     try:
         fast_variants.sets([checkpoint])
     finally:
-        predict_body.note_hull_first = note
+        predictor_module.rollout = rollout
     print("thinned from the known hull:")
     fast_variants.sets([checkpoint])
 

@@ -164,6 +164,7 @@ def rollout(
     body_inertia: np.ndarray | None = None,
     lengths: np.ndarray | None = None,
     with_changes: bool = True,
+    hull_counts: np.ndarray | None = None,
 ) -> RolloutResult:
     """Roll a predictor out for ``steps`` transitions from the state at step 0, B sequences at once.
 
@@ -194,6 +195,9 @@ def rollout(
     body_inertia: optional (B, 3, 3) I / m of each body in world axes at step 0, for a topple classifier
     that simulates the cloud's hull (``fit-topple --physics``; ``physdyn.geometry.mass.world_inertia_per_mass``)
     and for ``model.sim_seconds``; without it those roll-outs take the hull's inertia.
+    ``hull_counts`` (B,): how many of each ``points_body`` cloud's first points are its mesh's hull vertices
+    (``PreparedBody.hull_count``), so a PointNet that thins them needs no qhull (``thin_hull_surface``; a
+    store's clouds come without).
     ``with_changes=False``: the result's ``delta_*`` are None, for a caller that reads the states only
     (``Predictor``): an outcome correction then does not work out the corrected steps' changes again.
     A model with ``model.sim_seconds`` > 0 takes its first k steps (those seconds at its rate) from PyBullet run on the hull of
@@ -250,7 +254,8 @@ def rollout(
     turned_thinned: dict[int, np.ndarray] = {}  # size -> points_body thinned to it and turned to step 0
     if classifier is not None:
         if getattr(classifier, "thinned_from", 0):  # a PointNet fitted on thinned clouds thins what it is given
-            cloud = _oriented(classifier.body_clouds(_numpy(points_body if topple_points_body is None else topple_points_body)), q0)
+            given = _numpy(points_body if topple_points_body is None else topple_points_body)
+            cloud = _oriented(classifier.body_clouds(given, hull_counts if topple_points_body is None else None), q0)
             if topple_points_body is None:  # the model's own clouds, thinned and turned: a PointNet correction may read them too
                 turned_thinned[classifier.num_points] = cloud
         else:
@@ -278,7 +283,7 @@ def rollout(
         # (``thinned_clouds``) and, where the classifier read points_body, one turning
         clouds = None
         if getattr(correction, "num_points", 0):
-            body = correction.body_clouds(_numpy(points_body))  # checks the size it reads
+            body = correction.body_clouds(_numpy(points_body), hull_counts)  # checks the size it reads
             thinned = correction.thinned_from and correction.num_points in turned_thinned
             clouds = turned_thinned[correction.num_points] if thinned else _oriented(body, q0)
         if with_changes:

@@ -296,9 +296,9 @@ def _orient(mesh: trimesh.Trimesh) -> None:
     """Make winding consistent and normals point outwards (in place)."""
     try:
         trimesh.repair.fix_winding(mesh)
+        _flip_inverted_bodies(mesh)
     except Exception:  # non-manifold face adjacency can defeat the graph traversal; leave it as it is
         return
-    _flip_inverted_bodies(mesh)
     # The flip goes by each closed body's signed volume, which is meaningless for an open surface: only a
     # closed mesh is turned inside out as a whole.
     if mesh.is_watertight and mesh.volume < 0:

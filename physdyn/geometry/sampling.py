@@ -70,7 +70,7 @@ def hull_surface_points(mesh: trimesh.Trimesh, num_points: int, seed: int = 0,
 THIN_QHULL_OPTIONS = "Qt QbB Pp C-1e-7"  # merges facets within 1e-7 of the unit cube: float32 samples on a face stay off the hull
 
 
-def thin_hull_surface(points: np.ndarray, count: int) -> np.ndarray:
+def thin_hull_surface(points: np.ndarray, count: int, hull_count: int | None = None) -> np.ndarray:
     """``count`` points (float32, or the cloud as it is when it holds no more) of a ``hull_surface`` cloud
     (N, 3), as that representation builds a smaller one: the cloud's hull vertices first (farthest-point
     thinned from the lowest when there are more than ``count``), then its other points in their order
@@ -83,18 +83,17 @@ def thin_hull_surface(points: np.ndarray, count: int) -> np.ndarray:
     meshes or turned boxes, and the few near-coplanar mesh vertices it drops lose under 1e-7 of the hull's
     volume. A flat cloud, which qhull refuses, is thinned whole.
 
-    A cloud a prediction built from its mesh (``PreparedBody.points_body`` notes it: ``note_hull_first``) skips
-    qhull: its first points are the mesh's hull vertices, and those are taken as its hull (qhull's took 0.8 ms
-    of a 11 ms prediction of a new mesh). A store's clouds are thinned by qhull, wherever they were made.
-    On 962 of 970 clouds of random_urdfs 000-999 (256 points) qhull marks exactly those; on the other 8 its
-    merging drops or keeps one near-coplanar vertex (benchmarks/studies/thin_known_hull.py)."""
+    ``hull_count``: how many of the cloud's first points are its mesh's hull vertices, where the caller knows
+    (a prediction's cloud: ``PreparedBody.hull_count``). Those are then taken as its hull, with no qhull
+    (which took 0.8 ms of a 11 ms prediction of a new mesh). A store's clouds come without it and are thinned
+    by qhull. The two thin 864 of 910 random_urdfs 000-999 clouds (256 points) alike; on the others qhull's
+    merging drops or keeps a near-coplanar hull vertex (benchmarks/studies/thin_known_hull.py)."""
     points = np.asarray(points, dtype=np.float32)
     if count >= len(points):
         return points
     on_hull = np.zeros(len(points), dtype=bool)
-    known = _HULL_FIRST.get(points.tobytes())
-    if known is not None:
-        on_hull[:known] = True
+    if hull_count is not None:
+        on_hull[: int(hull_count)] = True
     else:
         from scipy.spatial import ConvexHull, QhullError
 
@@ -107,19 +106,6 @@ def thin_hull_surface(points: np.ndarray, count: int) -> np.ndarray:
     if len(vertices) >= count:
         return np.ascontiguousarray(farthest_point_sample(vertices, count), dtype=np.float32)
     return np.concatenate([vertices, points[~on_hull][: count - len(vertices)]])
-
-
-_HULL_FIRST: dict[bytes, int] = {}  # a hull_surface cloud (float32 bytes) -> how many of its first points are hull vertices
-HULL_FIRST_KEPT = 1024  # clouds noted, the latest
-
-
-def note_hull_first(points: np.ndarray, count: int) -> None:
-    """Note that the first ``count`` points of the ``hull_surface`` cloud ``points`` (N, 3) float32 are its
-    mesh's convex-hull vertices (as ``hull_surface_points`` put them there), so that ``thin_hull_surface``
-    needs no qhull for it."""
-    if len(_HULL_FIRST) >= HULL_FIRST_KEPT:
-        _HULL_FIRST.pop(next(iter(_HULL_FIRST)))  # the oldest
-    _HULL_FIRST[np.asarray(points, dtype=np.float32).tobytes()] = int(count)
 
 
 def uniform_surface_samples(mesh: trimesh.Trimesh, count: int, seed: int) -> np.ndarray:

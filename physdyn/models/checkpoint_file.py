@@ -31,7 +31,7 @@ ALLOWED_TYPES: list[Any] = []
 _GLOBAL = re.compile(r"GLOBAL ([\w.]+)")
 
 # The models shipped with physdyn, by name: a checkpoint argument of one of these names that is not a file
-# reads the shipped one (docs/model-card.md): the bundled model, the default; "fast", nothing simulated.
+# reads the shipped one (docs/model-card.md): "fast", nothing simulated, the default; "bundled", the hybrid.
 ASSETS = Path(__file__).resolve().parents[1] / "assets"
 SHIPPED = {"bundled": ASSETS / "bundled.ckpt", "fast": ASSETS / "fast.ckpt"}
 

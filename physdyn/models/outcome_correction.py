@@ -122,14 +122,14 @@ class OutcomeCorrection:
         self._layers = [(np.stack([s[f"{n}.weight"].double().numpy().T for s in self.networks]),
                          np.stack([s[f"{n}.bias"].double().numpy() for s in self.networks])[:, None, :]) for n in names]
 
-    def body_clouds(self, points_body: np.ndarray) -> np.ndarray:
+    def body_clouds(self, points_body: np.ndarray, hull_counts: Any = None) -> np.ndarray:
         """The body-frame clouds (B, num_points, 3) it reads, from those it is given (B, N, 3): thinned as at
         fitting where it was fitted on thinned ones, else as they are. N must be the size it was fitted on."""
         given = np.shape(points_body)[1]
         if given != (self.thinned_from or self.num_points):
             raise ValueError(f"this outcome correction was fitted on hull_surface clouds of {self.thinned_from or self.num_points} "
                              f"points and is given {given}: give it clouds of the size its model reads")
-        return thinned_clouds(points_body, self.num_points if self.thinned_from else 0)
+        return thinned_clouds(points_body, self.num_points if self.thinned_from else 0, hull_counts)
 
     def correction(self, inputs: np.ndarray, clouds: np.ndarray | None = None) -> np.ndarray:
         """Raw inputs (B, 13) -> (B, 3): the displacement along and across the travel (m) and the turn

@@ -109,14 +109,16 @@ def numpy_forward(layers: tuple[list, list], cloud: np.ndarray, scalars: np.ndar
     return h
 
 
-_THINNED: dict[tuple[int, bytes], np.ndarray] = {}  # (count, body-frame cloud) -> its thinned cloud, the latest
+_THINNED: dict[tuple, np.ndarray] = {}  # (count, body-frame cloud, its hull count) -> its thinned cloud, the latest
 
 
-def thinned_clouds(points_body: np.ndarray, count: int) -> np.ndarray:
+def thinned_clouds(points_body: np.ndarray, count: int, hull_counts: Any = None) -> np.ndarray:
     """(B, count, 3) float32: each body-frame cloud of (B, N, 3) thinned by ``thin_hull_surface``, each distinct
     cloud once in the process: a batch of one object's pushes repeats one cloud hundreds of times, and the
     topple PointNet and a PointNet outcome correction that thin alike read one thinning (the latest
-    THINNED_KEPT kept; ``forget_thinned``). As given where ``count`` is 0 or not below N."""
+    THINNED_KEPT kept; ``forget_thinned``). As given where ``count`` is 0 or not below N. ``hull_counts`` (B,):
+    how many of each cloud's first points are its mesh's hull vertices, where the caller knows (a prediction:
+    ``PreparedBody.hull_count``); then no qhull runs for it (``thin_hull_surface``)."""
     points_body = np.asarray(points_body, dtype=np.float32)
     if not count or points_body.shape[1] <= count:
         return points_body
@@ -124,11 +126,12 @@ def thinned_clouds(points_body: np.ndarray, count: int) -> np.ndarray:
 
     out = np.empty((len(points_body), count, 3), dtype=np.float32)
     for b, cloud in enumerate(points_body):
-        key = (count, cloud.tobytes())
+        hull_count = None if hull_counts is None else int(hull_counts[b])
+        key = (count, cloud.tobytes(), hull_count)
         if key not in _THINNED:
             if len(_THINNED) >= THINNED_KEPT:
                 _THINNED.pop(next(iter(_THINNED)))  # the oldest
-            _THINNED[key] = thin_hull_surface(cloud, count)
+            _THINNED[key] = thin_hull_surface(cloud, count, hull_count)
         out[b] = _THINNED[key]
     return out
 
@@ -205,13 +208,14 @@ class PointNetToppleClassifier:
             return np.mean([torch.sigmoid(_in_passes(net, cloud, scalars)).numpy() for net in self._modules],
                            axis=0).astype(np.float64)
 
-    def body_clouds(self, points_body: np.ndarray) -> np.ndarray:
+    def body_clouds(self, points_body: np.ndarray, hull_counts: Any = None) -> np.ndarray:
         """The clouds it reads (B, num_points, 3) from those it is given (B, N, 3), body frame: each thinned by
         ``thin_hull_surface`` when the classifier was fitted on thinned ones (``fit-topple --pointnet
         --num-points``; given its ``thinned_from``-point clouds), else as they are. Thinned before a push
         turns them (from the body frame's lowest hull vertex, as its training clouds were), each distinct
-        cloud once: a batch of one object's pushes repeats one cloud hundreds of times."""
-        return thinned_clouds(points_body, self.num_points if self.thinned_from else 0)
+        cloud once: a batch of one object's pushes repeats one cloud hundreds of times. ``hull_counts``: as for
+        ``thinned_clouds``."""
+        return thinned_clouds(points_body, self.num_points if self.thinned_from else 0, hull_counts)
 
     def per_step(self, probability: np.ndarray, steps: int) -> np.ndarray:
         """(B,) -> (B, steps + 1): the probability of having toppled by step t (0 at step 0)."""

@@ -15,7 +15,6 @@ import trimesh
 from physdyn.config import DataConfig, MassConfig
 from physdyn.errors import PredictionError, ShapeError
 from physdyn.geometry.mesh_io import load_mesh
-from physdyn.geometry.sampling import note_hull_first
 from physdyn.sim.body import body_surface_points, rigid_body
 from physdyn.sim.trajectory import resting_com_position
 
@@ -39,13 +38,15 @@ class PreparedBody:
         """(num_points, 3) float32 points in the body frame (mesh axes, origin at the com), in the
         representation ``method`` the model was trained on (geometry/sampling.py)."""
         if (num_points, method) not in self._points:
-            points = body_surface_points(self.mesh, self.spec, num_points, DataConfig().oversample, POINTS_SEED, method)
-            if method == "hull_surface":
-                # its first points are the hull's vertices: thinning it needs no qhull (``note_hull_first``). Noted
-                # here, for predictions only: a store's clouds are thinned by qhull wherever they were made.
-                note_hull_first(points, min(len(self.spec.body_vertices()), num_points))
-            self._points[num_points, method] = points
+            self._points[num_points, method] = body_surface_points(self.mesh, self.spec, num_points,
+                                                                   DataConfig().oversample, POINTS_SEED, method)
         return self._points[num_points, method]
+
+    def hull_count(self, num_points: int) -> int:
+        """How many of the first points of its ``hull_surface`` cloud of ``num_points`` are the vertices of the
+        mesh's convex hull (``hull_surface_points`` puts them first): what thinning that cloud takes as its
+        hull, with no qhull (``thin_hull_surface``)."""
+        return min(len(self.spec.body_vertices()), int(num_points))
 
 
 def prepare_body(mesh: Any, scale: float = 1.0, density: float | None = None) -> PreparedBody:

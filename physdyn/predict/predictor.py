@@ -255,6 +255,10 @@ class Predictor:
         bodies = self._bodies(meshes, scales)
         p0, spin_inertia, body_inertia = _posed(bodies, q0)
         points = np.stack([body.points_body(self.num_points, self.points_method) for body in bodies])
+        # a hull_surface cloud's first points are its mesh's hull vertices: thinning it needs no qhull
+        hulls = None
+        if self.points_method == "hull_surface":
+            hulls = np.array([body.hull_count(self.num_points) for body in bodies])
         classifier = getattr(self.model, "topple_classifier", None)
         dense = None if classifier is None else given_points(classifier)  # the cloud its simulations read
         method = getattr(classifier, "points_method", "surface")  # a PointNet classifier reads hull_surface
@@ -274,7 +278,8 @@ class Predictor:
             rolled = rollout(self.model, points[idx], q0[idx], p0[idx], v0[idx], w0[idx], longest - 1,
                              topple_points_body=None if topple_points is None else topple_points[idx],
                              spin_inertia=spin_inertia[idx], body_inertia=body_inertia[idx],
-                             lengths=np.array([steps[r] for r in idx]), with_changes=False)
+                             lengths=np.array([steps[r] for r in idx]), with_changes=False,
+                             hull_counts=None if hulls is None else hulls[idx])
             for b, r in enumerate(idx):
                 T = steps[r]
                 out = {k: None if v is None else v[:T] for k, v in rolled.sequence(b).items()}

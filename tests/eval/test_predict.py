@@ -298,9 +298,15 @@ def test_the_default_prediction_runs_no_simulator(tmp_path, monkeypatch, capsys)
     """`physdyn predict MESH` with no --checkpoint (and ``load_predictor()``) predicts with PyBullet refusing to run."""
     from tests.conftest import refuse_pybullet
 
+    import scipy.spatial
+
+    from physdyn.models.topple_pointnet import forget_thinned
+
     mesh = tmp_path / "part.obj"
     trimesh.creation.box((0.1, 0.06, 0.04)).export(mesh)
     refuse_pybullet(monkeypatch)
+    forget_thinned()
+    monkeypatch.setattr(scipy.spatial, "ConvexHull", None)  # nor qhull to thin its cloud: the body knows its hull
     out = tmp_path / "part.json"
     assert cli_main(["predict", str(mesh), "--lin-vel", "0.9", "0.1", "0", "--ang-vel", "0", "0", "3", "--out", str(out)]) == 0
     written = read_prediction(out)

@@ -96,9 +96,9 @@ def test_a_thinned_hull_surface_cloud_keeps_its_hull_points_first_then_its_own_s
 
 
 def test_a_cloud_made_from_a_mesh_is_thinned_from_its_known_hull_without_qhull(monkeypatch):
-    """A ``hull_surface`` cloud a prepared body made is noted with its hull's size, so thinning it runs no qhull
-    and takes its first points, the mesh's hull vertices, for its hull; where qhull marks just those (a box,
-    an irregular mesh), both thin it alike. A cloud made elsewhere (a store's) still goes through qhull."""
+    """Given how many of a ``hull_surface`` cloud's first points are its mesh's hull vertices (a prepared body
+    knows), thinning it runs no qhull and takes those for its hull; where qhull marks just those (a box, an
+    irregular mesh), both thin it alike. A cloud without it (a store's) still goes through qhull."""
     import scipy.spatial
 
     import physdyn.geometry.sampling as sampling
@@ -109,21 +109,12 @@ def test_a_cloud_made_from_a_mesh_is_thinned_from_its_known_hull_without_qhull(m
         body = prepare_body(mesh)
         cloud = body.points_body(64, "hull_surface")
         hull_size = len(body.spec.body_vertices())
-        assert sampling._HULL_FIRST[cloud.tobytes()] == min(hull_size, 64)
+        assert body.hull_count(64) == min(hull_size, 64)
         with monkeypatch.context() as patched:
             patched.setattr(scipy.spatial, "ConvexHull", None)  # any qhull run would fail
-            known = sampling.thin_hull_surface(cloud, count)
-        copy = cloud.copy()
-        copy[-1] += np.float32(1e-6)  # another cloud: not noted, so qhull thins it
-        assert copy.tobytes() not in sampling._HULL_FIRST
-        qhull = sampling.thin_hull_surface(copy, count)
-        np.testing.assert_array_equal(known[:-1], qhull[:-1])
+            known = sampling.thin_hull_surface(cloud, count, body.hull_count(64))
+        qhull = sampling.thin_hull_surface(cloud, count)
+        np.testing.assert_array_equal(known, qhull)
         kept = min(hull_size, count)
         assert {tuple(p) for p in known[:kept]} <= {tuple(p) for p in cloud[:hull_size]}
         np.testing.assert_array_equal(known[kept:], cloud[hull_size:hull_size + count - kept])
-    # a store's cloud (simulate, the viewer's rebuilt shapes) is not noted: training thins it by qhull wherever it was made
-    from physdyn.sim.body import body_surface_points, rigid_body
-
-    made = rigid_body(trimesh.creation.box((0.07, 0.05, 0.03)), "stored box", 1000.0)
-    stored = body_surface_points(made.mesh, made.spec, 64, 3, 0, "hull_surface")
-    assert stored.tobytes() not in sampling._HULL_FIRST
