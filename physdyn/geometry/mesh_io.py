@@ -284,12 +284,17 @@ def _bodies_have_volume(vertices: np.ndarray, faces: np.ndarray, crosses: np.nda
                            shape=(count, count))
     # The adjacency is symmetric, so strong components are the bodies (and need no transpose).
     bodies, label = connected_components(adjacency, directed=True, connection="strong")
-    # The divergence theorem per face, as trimesh's mass_properties integrates the volume (times 6).
-    x = vertices[:, 0]
-    signed = crosses[:, 0] * (np.take(x, faces[:, 0]) + np.take(x, faces[:, 1]) + np.take(x, faces[:, 2]))
+    signed = _signed_volumes(vertices, faces, crosses)
     volume = np.bincount(label, weights=signed, minlength=bodies)
     scale = np.bincount(label, weights=np.abs(signed), minlength=bodies)
     return bool((volume > 1e-9 * scale).all())
+
+
+def _signed_volumes(vertices: np.ndarray, faces: np.ndarray, crosses: np.ndarray) -> np.ndarray:
+    """(F,) each face's share of its body's volume, times 6: the divergence theorem per face, as trimesh's
+    mass_properties integrates the volume; crosses (F, 3) the faces' edge cross products."""
+    x = vertices[:, 0]
+    return crosses[:, 0] * (np.take(x, faces[:, 0]) + np.take(x, faces[:, 1]) + np.take(x, faces[:, 2]))
 
 
 def _orient(mesh: trimesh.Trimesh) -> None:
@@ -333,10 +338,7 @@ def _flip_inverted_bodies(mesh: trimesh.Trimesh) -> None:
     sound &= np.bincount(run_body[run_length == 2], weights=~opposite, minlength=bodies) == 0
     if not sound.any():
         return
-    vertices = mesh.vertices.view(np.ndarray)
-    crosses = mesh.triangles_cross
-    x = vertices[:, 0]
-    signed = crosses[:, 0] * (np.take(x, faces[:, 0]) + np.take(x, faces[:, 1]) + np.take(x, faces[:, 2]))
+    signed = _signed_volumes(mesh.vertices.view(np.ndarray), faces, mesh.triangles_cross)
     flip = (sound & (np.bincount(label, weights=signed, minlength=bodies) < 0.0))[label]
     if not flip.any():
         return

@@ -46,7 +46,7 @@ class PreparedBody:
         """How many of the first points of its ``hull_surface`` cloud of ``num_points`` are the vertices of the
         mesh's convex hull (``hull_surface_points`` puts them first): what thinning that cloud takes as its
         hull, with no qhull (``thin_hull_surface``)."""
-        return min(len(self.spec.body_vertices()), int(num_points))
+        return min(len(self.spec.hull_vertices), int(num_points))  # (body_vertices() would turn them all to count them)
 
 
 def prepare_body(mesh: Any, scale: float = 1.0, density: float | None = None) -> PreparedBody:
