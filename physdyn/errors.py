@@ -30,7 +30,7 @@ class PredictionWarning(UserWarning):
 
 
 class CheckpointError(PhysdynError):
-    """A checkpoint path that is missing or does not hold a physdyn DynamicsModel."""
+    """A checkpoint path that is missing or does not hold a physdyn DynamicsNetwork."""
 
 
 class OutputWriteError(PhysdynError, OSError):

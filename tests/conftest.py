@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import ast
+import importlib.util
 import os
 import shutil
 import subprocess
@@ -99,3 +101,26 @@ def refuse_pybullet(monkeypatch) -> None:
 
     for name in ("connect", "stepSimulation"):
         monkeypatch.setattr(pybullet, name, refuse)
+
+
+def module_level_imports(module: str) -> tuple[set[str], set[str]]:
+    """What importing ``module`` imports, its package's modules followed through their own module-level
+    imports (not those inside functions) -> (the physdyn modules seen, the top-level packages reached)."""
+    seen, todo, reached = set(), [module], set()
+    while todo:
+        name = todo.pop()
+        if name in seen:
+            continue
+        seen.add(name)
+        tree = ast.parse(open(importlib.util.find_spec(name).origin).read())
+        for node in tree.body:  # the module's own level: what importing it runs (not `if TYPE_CHECKING:`)
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module] if isinstance(node, ast.ImportFrom) and node.module else [])
+            for imported in names:
+                reached.add(imported.split(".")[0])
+                if imported.startswith("physdyn."):
+                    todo.append(imported)
+                    parent = imported.rsplit(".", 1)[0]
+                    todo.extend(p for p in (parent,) if p != "physdyn" and importlib.util.find_spec(p).origin.endswith("__init__.py"))
+    return seen, reached
+

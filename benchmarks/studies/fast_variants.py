@@ -90,7 +90,7 @@ def topple(checkpoints: list[str]) -> None:
 
 def stages(checkpoint: str, set_name: str) -> None:
     import physdyn.geometry.mesh_io as mesh_io
-    import physdyn.models.dynamics_module as dynamics_module
+    import physdyn.models.dynamics_network as dynamics_network
     import physdyn.models.outcome_correction as outcome_correction
     import physdyn.models.single_rollout as single_rollout
     import physdyn.models.topple_pointnet as topple_pointnet
@@ -122,7 +122,7 @@ def stages(checkpoint: str, set_name: str) -> None:
                                (single_rollout.SingleRollout, "run", "  the contact prior's steps"),
                                (topple_pointnet, "thinned_clouds", "  thinning the cloud (qhull, FPS)"),
                                (topple_pointnet.PointNetToppleClassifier, "predict", "  the topple PointNet"),
-                               (dynamics_module.DynamicsModel, "encode", "  the shape code (footprint)"),
+                               (dynamics_network.DynamicsNetwork, "encode", "  the shape code (footprint)"),
                                (outcome_correction, "correct_rollout", "  the outcome correction"),
                                (outcome_correction.OutcomeCorrection, "correction", "    its networks"),
                                (predictor_module, "_posed", "posing the body (resting height, inertia)"),

@@ -31,7 +31,7 @@ import trimesh
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent))
-import physdyn.models.dynamics_module as dm  # noqa: E402
+import physdyn.models.dynamics_network as dm  # noqa: E402
 import physdyn.models.priors as pri  # noqa: E402
 from footprint_facet import touching_mask  # noqa: E402
 from spin_primitives import prior_rollout  # noqa: E402

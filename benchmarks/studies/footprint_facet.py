@@ -42,7 +42,7 @@ def main():
         masks = np.stack([touching_mask(p, TOL, PERIMETER) for p in points.detach().cpu().numpy().astype(np.float64)])
         return orig(points, torch.from_numpy(masks).to(points.device))
     pri.contact_geometry = patched
-    import physdyn.models.dynamics_module as dm
+    import physdyn.models.dynamics_network as dm
     dm.contact_geometry = patched
     if which in ("val", "test", "prior-val", "prior-test"):
         from physdyn.eval.evaluate import evaluate

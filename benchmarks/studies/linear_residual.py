@@ -1,5 +1,5 @@
 """The network's residual on the linear channels only (Δv, Δp); spin and rotation (Δω, Δθ) from the contact
-prior alone. A patch of DynamicsModel.with_residual for the length of the run (not a physdyn option), and
+prior alone. A patch of DynamicsNetwork.with_residual for the length of the run (not a physdyn option), and
 the one-object roll-out routed through the batched one, which applies it.
 
     python benchmarks/studies/linear_residual.py fit configs/experiment/quickstart.yaml model.head.params.detach_topple=true out_dir=runs/qs_linonly
@@ -13,12 +13,12 @@ from pathlib import Path
 
 import torch
 
-from physdyn.models.dynamics_module import DynamicsModel
+from physdyn.models.dynamics_network import DynamicsNetwork
 from physdyn.models.single_rollout import SingleRollout
 
 KEEP = torch.tensor([1.0] * 3 + [0.0] * 3 + [1.0] * 3 + [0.0] * 3)  # [dv, dw, dp, dtheta]
-original = DynamicsModel.with_residual
-DynamicsModel.with_residual = lambda self, changes, prior, moving: original(self, changes * KEEP.to(changes), prior, moving)
+original = DynamicsNetwork.with_residual
+DynamicsNetwork.with_residual = lambda self, changes, prior, moving: original(self, changes * KEEP.to(changes), prior, moving)
 SingleRollout.supports = staticmethod(lambda model: False)
 
 what, args = sys.argv[1], sys.argv[2:]

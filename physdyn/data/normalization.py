@@ -12,11 +12,14 @@ numbers it was trained with.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from physdyn.data.store import StoreData
 from physdyn.data.windows import FrameTargets, frame_targets
+
+if TYPE_CHECKING:  # annotations only: reading a store (zarr) is not needed to predict
+    from physdyn.data.store import StoreData
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ Both predict that nothing topples (probability 0 at every step). Neither uses a 
   Teacher-forced one-step errors start each step at rest in the true orientation with the true velocities
   (a rocking or airborne state is put on the ground). About 10 ms of CPU per push.
 
-``resolve_predictor`` accepts a baseline's name, a ``Baseline``, a ``DynamicsModel`` or the path of any
+``resolve_predictor`` accepts a baseline's name, a ``Baseline``, a ``DynamicsNetwork`` or the path of any
 ``DynamicsModel`` checkpoint (e.g. the MLP baseline of ``configs/experiment/mlp_baseline.yaml``).
 """
 
@@ -156,9 +156,10 @@ BASELINES: dict[str, type[Baseline]] = {"stay_put": StayPut, "coulomb_slide": Co
 
 
 def load_checkpoint(path: str | Path):
-    """A ``DynamicsModel`` from a checkpoint of `physdyn fit`; a one-line ``CheckpointError`` otherwise."""
+    """A ``DynamicsNetwork`` from a checkpoint of `physdyn fit` (plain torch: predicting and evaluating need not
+    import Lightning); a one-line ``CheckpointError`` otherwise."""
     from physdyn.models.checkpoint_file import read_checkpoint  # torch: not for the numpy baselines
-    from physdyn.models.dynamics_module import DynamicsModel  # and Lightning
+    from physdyn.models.dynamics_network import DynamicsNetwork
 
     path = Path(path)
     # a one-line error for a missing, unreadable, foreign or code-carrying file; "bundled" and "fast" name the
@@ -167,13 +168,13 @@ def load_checkpoint(path: str | Path):
     try:
         # Built as Lightning's load_from_checkpoint builds it, but from the dict read without running code:
         # that one reads the file again, and before Lightning 2.6 with weights_only=False.
-        model = DynamicsModel(**raw["hyper_parameters"])
+        model = DynamicsNetwork(**raw["hyper_parameters"])
         model.on_load_checkpoint(raw)
         model.load_state_dict(raw["state_dict"])
     except PhysdynError:
         raise
     except Exception as exc:
-        raise CheckpointError(f"cannot load {path} as a physdyn DynamicsModel: {type(exc).__name__}: "
+        raise CheckpointError(f"cannot load {path} as a physdyn model: {type(exc).__name__}: "
                               f"{str(exc).splitlines()[0] if str(exc) else ''}") from None
     model.eval()
     return model
@@ -189,14 +190,14 @@ def checkpoint_and_store(checkpoint: str | Path, data: str | None = None):
 
 
 def resolve_predictor(spec: Any):
-    """A baseline name, a ``Baseline``, a ``DynamicsModel`` or a checkpoint path -> the predictor."""
+    """A baseline name, a ``Baseline``, a ``DynamicsNetwork`` (or its ``DynamicsModel``) or a checkpoint path -> the predictor."""
     if isinstance(spec, Baseline) or hasattr(spec, "encode_points"):
         return spec
     if isinstance(spec, str) and spec in BASELINES:
         return BASELINES[spec]()
     if isinstance(spec, (str, Path)):
         return load_checkpoint(spec)
-    raise TypeError(f"cannot evaluate a {type(spec).__name__}; pass a DynamicsModel, a checkpoint path or one of {sorted(BASELINES)}")
+    raise TypeError(f"cannot evaluate a {type(spec).__name__}; pass a DynamicsNetwork, a checkpoint path or one of {sorted(BASELINES)}")
 
 
 def predictor_name(predictor: Any, fallback: str = "model") -> str:

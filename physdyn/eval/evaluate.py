@@ -279,7 +279,7 @@ def evaluate(model_or_baseline: Any, store: StoreData | str, split: str = "test"
              keep_trajectories: bool = False) -> dict[str, Any]:
     """All metrics of one predictor on a split of a store.
 
-    model_or_baseline: a ``DynamicsModel``, a checkpoint path, a ``Baseline`` or a baseline name
+    model_or_baseline: a ``DynamicsNetwork``, a checkpoint path, a ``Baseline`` or a baseline name
     ("stay_put", "coulomb_slide"). warm_start: K true velocity steps fed after step 0 (models only).
     categories: category names to keep (default all). Returns a JSON-ready dict: ``rollout``,
     ``per_category`` (per category name: ``non_toppling`` and ``all``), ``curves`` (per group: mean error

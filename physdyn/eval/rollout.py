@@ -168,14 +168,14 @@ def rollout(
 ) -> RolloutResult:
     """Roll a predictor out for ``steps`` transitions from the state at step 0, B sequences at once.
 
-    model: a ``DynamicsModel`` (or anything with its ``encode_points`` and ``step``).
+    model: a ``DynamicsNetwork`` (or anything with its ``encode_points`` and ``step``).
     points_body: (B, N, 3) body-frame cloud (pass the number of points the model was trained on);
     orientation0_xyzw (B, 4), com_position0 (B, 3), lin_vel0 (B, 3), ang_vel0 (B, 3): step 0, world frame.
     warm_start_velocities: optional (linear, angular), each (B, K, 3): the TRUE velocities at steps 1..K,
     fed instead of the model's own (the paper's "additional velocity steps"; K = 1 for the real-world
     model). Step 0 always receives the given true velocities. During the warm start the reported
     velocities are these observations; position and orientation are always the model's integrated ones.
-    A model with ``rollout_changes`` (``DynamicsModel``) runs the loop in torch; ``stepwise=True`` forces
+    A model with ``rollout_changes`` (``DynamicsNetwork``) runs the loop in torch; ``stepwise=True`` forces
     the reference loop through ``step`` (the same numbers to float32 precision; tests compare them).
     A model with a ``topple_classifier`` (``physdyn fit-topple``) reports its per-step probabilities
     instead of the head's, from ``topple_points_body`` (B, N', 3) (default: ``points_body``; one fitted on thinned
@@ -313,7 +313,7 @@ def toppled_by_own_end(probability: np.ndarray | None, q0: np.ndarray, orientati
 
 
 def sim_steps(model: Any) -> int:
-    """The steps ``model.sim_seconds`` of a ``DynamicsModel`` spans at its rate, at least one when it is set
+    """The steps ``model.sim_seconds`` of a ``DynamicsNetwork`` spans at its rate, at least one when it is set
     (0 for anything else)."""
     seconds = float(getattr(getattr(getattr(model, "config", None), "model", None), "sim_seconds", 0.0) or 0.0)
     return max(1, int(round(seconds / float(model.prior_dt)))) if seconds > 0 else 0
@@ -346,7 +346,7 @@ def simulated_start(model: Any, points_body: np.ndarray, q0: np.ndarray, p0: np.
 
 
 def _if_taken(model: Any, spin_inertia: np.ndarray | None) -> np.ndarray | None:
-    """The bodies' spin inertia for a model that takes it (``DynamicsModel``), None for one that does not:
+    """The bodies' spin inertia for a model that takes it (``DynamicsNetwork``), None for one that does not:
     callers pass it always, and a predictor with only ``encode_points(points)`` and ``step`` still works."""
     return spin_inertia if hasattr(model, "with_spin_inertia") else None
 

@@ -1,4 +1,4 @@
-"""A batch's roll-out in torch: ``DynamicsModel.rollout_changes`` for B > 1, on a GPU, or with components
+"""A batch's roll-out in torch: ``DynamicsNetwork.rollout_changes`` for B > 1, on a GPU, or with components
 the one-object roll-out (``physdyn.models.single_rollout``) does not cover.
 
 One shape encoding per distinct cloud, then one network step per recorded step on the model's own
@@ -12,7 +12,7 @@ the stop itself, without its sub-steps (``physdyn.models.priors.contact_changes`
 (docs/performance.md).
 A model that is its prior alone (the ``none`` predictor and a zero residual: ``fast``, the planner's screen)
 takes the prior's changes without the model's forward, with the same numbers
-(``DynamicsModel.changes_are_the_prior``).
+(``DynamicsNetwork.changes_are_the_prior``).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from physdyn.models.rotations import quat_multiply, rotvec_to_quat
 def batch_rollout(model: Any, points: Any, linear_velocity0: Any, angular_velocity0: Any, steps: int, warm_linear: Any = None,
                   warm_angular: Any = None, spin_inertia: Any = None, topple: bool = True,
                   warm_turn: Any = None) -> dict[str, torch.Tensor | None]:
-    """``DynamicsModel.rollout_changes`` for a batch, in torch (call it through that method, which sets eval
+    """``DynamicsNetwork.rollout_changes`` for a batch, in torch (call it through that method, which sets eval
     and inference mode): the same arguments and results."""
     device, f64 = model.device, torch.float64
     points = torch.as_tensor(points, dtype=torch.float32, device=device)

@@ -10,7 +10,7 @@ trained. In a file of two networks (``--linear-from``, or such a file as SRC) a 
 
 ``--linear-from CKPT`` combines two trained models into one file: the velocity and position changes come
 from CKPT's network (best trained with ``model.residual_channels=linear``), spin, rotation and toppling from
-SRC's, both networks fed the same state at every step (``DynamicsModel.linear_channels``). CKPT's own topple
+SRC's, both networks fed the same state at every step (``DynamicsNetwork.linear_channels``). CKPT's own topple
 classifier and optimiser state are left out.
 """
 
@@ -26,7 +26,7 @@ from omegaconf import OmegaConf
 from physdyn.config import ExperimentConfig, config_from_dict, parse_override, to_dict
 from physdyn.errors import ConfigError, PhysdynError
 from physdyn.models.checkpoint_file import read_checkpoint, write_torch_file
-from physdyn.models.dynamics_module import DynamicsModel
+from physdyn.models.dynamics_network import DynamicsNetwork
 from physdyn.models.training import validate_experiment_config
 
 # What DynamicsModel.load_from_checkpoint needs; the optimiser, loops and callbacks are only for resuming.
@@ -65,8 +65,8 @@ def with_linear_channels(slim: dict, linear: dict, name: str) -> dict:
     state = {k: v for k, v in slim["state_dict"].items() if not k.startswith("linear_channels.")}
     state.update({f"linear_channels.{k}": v for k, v in linear["state_dict"].items()})
     out = {**slim, "state_dict": state, "linear_channels": {"hyper_parameters": linear["hyper_parameters"]}}
-    model = DynamicsModel(**slim["hyper_parameters"])
-    model.attach_linear_channels(DynamicsModel(**linear["hyper_parameters"]))  # the rate and orientation checks
+    model = DynamicsNetwork(**slim["hyper_parameters"])
+    model.attach_linear_channels(DynamicsNetwork(**linear["hyper_parameters"]))  # the rate and orientation checks
     for key in ("change_shift", "velocity_shift"):  # checkpoints from before per-channel normalisation
         state.setdefault(f"linear_channels.{key}", torch.zeros_like(getattr(model, key)))
     missing, unexpected = model.load_state_dict(state, strict=False)

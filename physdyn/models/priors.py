@@ -45,7 +45,7 @@ PRIORS = ("none", "kinematic", "coulomb", "planar", "contact")
 SHAPE_PRIORS = ("contact",)  # priors that read the point cloud and the orientation since it was taken
 RESIDUAL_CHANNELS = ("all", "linear", "angular")  # what the network's residual corrects (model.residual_channels)
 # ... as a mask over the changes [dv (3), dw (3), dp (3), dtheta (3)]; "linear" is also what a model combined
-# from two networks (DynamicsModel.linear_channels) takes from its second one
+# from two networks (DynamicsNetwork.linear_channels) takes from its second one
 RESIDUAL_MASKS = {"all": [1.0] * 12, "linear": [1.0] * 3 + [0.0] * 3 + [1.0] * 3 + [0.0] * 3,
                   "angular": [0.0] * 3 + [1.0] * 3 + [0.0] * 3 + [1.0] * 3}
 CONTACT_INERTIA = ("points", "body")  # where the contact prior's spin inertia comes from (model.contact_inertia)

@@ -1,4 +1,4 @@
-"""One object's roll-out on numpy arrays and Python numbers: ``DynamicsModel.rollout_changes`` for B = 1.
+"""One object's roll-out on numpy arrays and Python numbers: ``DynamicsNetwork.rollout_changes`` for B = 1.
 
 A roll-out of one object calls the network once per recorded step on tensors of a few hundred numbers,
 where each torch operation costs a few microseconds of dispatch, more than its arithmetic: ~150 of them
@@ -10,7 +10,7 @@ It covers the components the shipped models use, the ``lstm`` predictor (and ``n
 alone, ``contact_prior_predictor()``) and the ``topple`` / ``no_topple`` heads, with any encoder (the shape
 is encoded once, in torch) and any prior, one network or two (a model with ``linear_channels``: each
 network keeps its own state, the prior is shared); ``SingleRollout.supports``
-says whether a model qualifies, and ``DynamicsModel.rollout_changes`` falls back to the torch loop when it
+says whether a model qualifies, and ``DynamicsNetwork.rollout_changes`` falls back to the torch loop when it
 does not. Its numbers equal the torch loop's to float32 rounding (``tests/models/test_single_rollout.py``).
 """
 
@@ -170,7 +170,7 @@ class _Network:
 
 
 class SingleRollout:
-    """The weights of a ``DynamicsModel`` as numpy arrays, and its roll-out for one object; of a model
+    """The weights of a ``DynamicsNetwork`` as numpy arrays, and its roll-out for one object; of a model
     combining two networks (``linear_channels``), both, the velocity and position changes from the second.
 
     Build it with ``SingleRollout.of(model)``, once per roll-out."""
@@ -197,7 +197,7 @@ class SingleRollout:
     def run(self, feature: torch.Tensor, v0: np.ndarray, w0: np.ndarray, steps: int,
             warm_v: np.ndarray | None, warm_w: np.ndarray | None, topple: bool = True,
             warm_turn: np.ndarray | None = None) -> dict[str, np.ndarray | None]:
-        """feature (1, F) from ``DynamicsModel.encode``; v0, w0 (3,) float64; warm_* (K, 3) or None (warm_turn
+        """feature (1, F) from ``DynamicsNetwork.encode``; v0, w0 (3,) float64; warm_* (K, 3) or None (warm_turn
         (K, 4): the rotations since step 0 at steps 1..K, fed with those velocities) ->
         the arrays of ``rollout_changes`` for one sequence: changes (1, S, 12), fed (1, S, 6), topple (1, S)
         (None with ``topple=False``, when the caller does not use the head's probabilities).

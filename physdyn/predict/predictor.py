@@ -1,6 +1,6 @@
 """Predicting how a user's mesh moves after a push.
 
-``load_predictor()`` gives a ``Predictor`` around a trained ``DynamicsModel`` (the shipped ``fast`` one by default:
+``load_predictor()`` gives a ``Predictor`` around a trained ``DynamicsNetwork`` (the shipped ``fast`` one by default:
 nothing simulated, the accuracy-cost frontier's point, docs/performance.md);
 ``Predictor.predict(mesh, lin_vel, ang_vel, seconds)`` places the object at rest on the ground as the
 conventions say (docs/conventions.md, "Initial condition"), rolls the model out and returns a dict with
@@ -25,7 +25,7 @@ from typing import Any, Sequence
 import numpy as np
 import torch
 
-from physdyn.config import PRESETS, PhysicsConfig
+from physdyn.config import PRESETS, ExperimentConfig, PhysicsConfig, load_config
 from physdyn.data.normalization import Normalization
 from physdyn.errors import PhysdynError, PredictionError, PredictionWarning
 from physdyn.eval.baselines import load_checkpoint
@@ -33,10 +33,9 @@ from physdyn.eval.rollout import rollout, sim_steps
 from physdyn.geometry.mass import vertical_inertia, world_inertia_per_mass
 from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_rotvec
 from physdyn.models.checkpoint_file import SHIPPED
-from physdyn.models.dynamics_module import DynamicsModel
+from physdyn.models.dynamics_network import DynamicsNetwork
 from physdyn.models.topple_classifier import given_points
 from physdyn.models.topple_pointnet import forget_thinned
-from physdyn.models.training import load_experiment_config
 from physdyn.predict.body import PreparedBody, preparation_key, prepare_body
 from physdyn.predict.simulator import SIMULATOR_NAME, simulate_from_state
 from physdyn.sim.cloud_body import forget_clouds
@@ -169,9 +168,9 @@ def _short(value: Any) -> str:
 # The predictor
 # --------------------------------------------------------------------------------------------------
 class Predictor:
-    """A trained ``DynamicsModel`` ready to predict users' meshes.
+    """A trained ``DynamicsNetwork`` ready to predict users' meshes.
 
-    model: a ``DynamicsModel``; name: what the ``checkpoint`` key of a result says (a path or a name);
+    model: a ``DynamicsNetwork``; name: what the ``checkpoint`` key of a result says (a path or a name);
     physics: the ``PhysicsConfig`` of ``compare_sim`` runs (default: the conventions' defaults).
     """
 
@@ -438,16 +437,17 @@ def contact_prior_predictor(physics: Any = None, rate_hz: float = 15.0, num_poin
     cloud with the body's own spin inertia, at the friction of ``physics`` (default: the conventions'). About
     0.1 ms a trajectory in a batch of one mesh's pushes; the planner screens candidates with it."""
     physics = physics or PhysicsConfig()
-    cfg = load_experiment_config(PRESETS / "experiment" / "contact_prior.yaml", [])
+    # the shipped preset, checked by the tests (training's full check also checks trainer keys, with Lightning)
+    cfg = load_config(ExperimentConfig, PRESETS / "experiment" / "contact_prior.yaml")
     info = {"rate_hz": float(rate_hz), "num_points": int(num_points), "points_method": "hull_surface",
             "friction": physics.lateral_friction_object * physics.lateral_friction_ground, "gravity": abs(physics.gravity)}
-    model = DynamicsModel(cfg, Normalization(mode="std_inputs", input_mean=(0.0,) * 6, input_std=(1.0,) * 6), info)
+    model = DynamicsNetwork(cfg, Normalization(mode="std_inputs", input_mean=(0.0,) * 6, input_std=(1.0,) * 6), info)
     model.eval()
     return Predictor(model, name="contact prior", physics=physics)
 
 
 def load_predictor(checkpoint: Any = None, physics: Any = None, device: str = "cpu") -> Predictor:
-    """A ``Predictor`` from a `physdyn fit` checkpoint path, a loaded ``DynamicsModel``, a shipped model's
+    """A ``Predictor`` from a `physdyn fit` checkpoint path, a loaded ``DynamicsNetwork``, a shipped model's
     name ("fast": nothing simulated, docs/model-card.md; "bundled": a simulated start and a topple roll-out
     in PyBullet), or (None) the default, the shipped ``fast`` model, on ``device`` (cpu, cuda or auto). Raises a
     one-line ``PhysdynError`` for anything else."""
@@ -461,7 +461,7 @@ def load_predictor(checkpoint: Any = None, physics: Any = None, device: str = "c
     if hasattr(checkpoint, "encode_points") and hasattr(checkpoint, "step"):
         return Predictor(checkpoint, name="model", physics=physics, device=device)
     if not isinstance(checkpoint, (str, os.PathLike)):
-        raise PhysdynError(f"checkpoint must be a path or a DynamicsModel, got {type(checkpoint).__name__}")
+        raise PhysdynError(f"checkpoint must be a path or a DynamicsNetwork, got {type(checkpoint).__name__}")
     return Predictor(load_checkpoint(checkpoint), name=str(checkpoint), physics=physics, device=device)
 
 

@@ -4,6 +4,7 @@ import contextlib
 import io
 import json
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +21,7 @@ from physdyn.models.training import fit, load_experiment_config
 from physdyn.predict.body import preparation_key, prepare_body
 from physdyn.predict.prediction_files import read_prediction, write_prediction
 from physdyn.predict.predictor import Predictor, load_predictor
-from tests.conftest import run_cli
+from tests.conftest import REPO, module_level_imports
 from tests.models.conftest import QUICKSTART, shrunk_overrides
 
 KEYS = {"rate_hz", "time", "com_position", "orientation_xyzw", "linear_velocity", "angular_velocity",
@@ -54,7 +55,7 @@ def predict_argv(mesh, checkpoint, out, *extra):
 @pytest.fixture(scope="module")
 def cli_run(checkpoint, meshes, tmp_path_factory):
     """One user run with every option: JSON out, the simulation beside, an animation. Through the command
-    line's main in this process (a fresh one spends 9 s importing lightning: the slow test below runs one)."""
+    line's main in this process (a fresh one spends about 6 s starting: the slow test below runs one)."""
     out = tmp_path_factory.mktemp("cli")
     stdout, stderr = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
@@ -64,11 +65,26 @@ def cli_run(checkpoint, meshes, tmp_path_factory):
     return out, proc
 
 
-@pytest.mark.slow  # a fresh process: 9 s of it importing lightning
+def test_predicting_imports_neither_lightning_nor_the_store_library():
+    """A prediction loads its model into the plain torch network: Lightning (and through it torch._dynamo,
+    torchmetrics) took 5 of a fresh `physdyn predict`'s 10 s, zarr another 0.3 (docs/predict.md). The
+    predictor's own imports, followed through the package, reach neither."""
+    seen, reached = module_level_imports("physdyn.predict.predictor")
+    assert {"physdyn.models.dynamics_network", "physdyn.eval.baselines"} <= seen and "torch" in reached  # it followed the package
+    assert not {"lightning", "torchmetrics", "zarr"} & reached, sorted(reached)
+
+
+@pytest.mark.slow  # a fresh process: about 6 s, most of it importing torch, trimesh and open3d
 def test_predict_in_a_fresh_process_writes_what_main_writes(cli_run, meshes, checkpoint, tmp_path):
-    proc = run_cli(*predict_argv(meshes / "box.obj", checkpoint, tmp_path / "box.json"))
+    # as a user runs it, with Python's import log: what the process imported, functions' imports included
+    proc = subprocess.run([sys.executable, "-X", "importtime", "-m", "physdyn.cli",
+                           *predict_argv(meshes / "box.obj", checkpoint, tmp_path / "box.json")],
+                          capture_output=True, text=True, timeout=300, cwd=REPO)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert f"wrote {tmp_path / 'box.json'}" in proc.stdout
+    imported = {line.rsplit("|", 1)[1].strip() for line in proc.stderr.splitlines() if line.startswith("import time:")}
+    assert "torch" in imported and "physdyn.models.dynamics_network" in imported  # the log is read
+    assert not {"lightning", "zarr"} & imported
     fresh, in_process = read_prediction(tmp_path / "box.json"), read_prediction(cli_run[0] / "box.json")
     for key in ("com_position", "orientation_xyzw", "linear_velocity", "angular_velocity"):
         np.testing.assert_array_equal(fresh[key], in_process[key])

@@ -12,7 +12,7 @@ from physdyn.eval.baselines import CheckpointError, load_checkpoint
 from physdyn.eval.evaluate import EvaluationError, compare, evaluate, gather_truth, select_sequences
 from physdyn.eval.metrics import rotation_angle_deg
 from physdyn.eval.rollout import DELTA_KEYS, integrate, rollout, teacher_forced
-from physdyn.models.dynamics_module import DynamicsPrediction
+from physdyn.models.dynamics_network import DynamicsPrediction
 from physdyn.models.training import fit, load_experiment_config
 from tests.conftest import run_cli
 from tests.models.conftest import QUICKSTART, shrunk_overrides

@@ -17,6 +17,7 @@ from physdyn.eval.evaluate import evaluate, gather_truth, select_sequences
 from physdyn.eval.rollout import teacher_forced
 from physdyn.models.batch_rollout import batch_rollout
 from physdyn.models.dynamics_module import DynamicsModel
+from physdyn.models.dynamics_network import DynamicsNetwork
 from physdyn.models.export import export_checkpoint
 from physdyn.models.single_rollout import SingleRollout
 from physdyn.models.training import load_experiment_config
@@ -102,7 +103,9 @@ def combined(tiny_store, tmp_path, data):
 
 def test_a_combined_model_takes_velocity_and_position_from_one_network_and_the_rest_from_the_other(combined, store):
     linear, angular, _, both = combined
-    assert isinstance(both.linear_channels, DynamicsModel) and both.linear_channels.config.model.residual_channels == "linear"
+    # loaded for prediction as the plain network, both parts (no Lightning)
+    assert type(both) is type(both.linear_channels) is DynamicsNetwork
+    assert both.linear_channels.config.model.residual_channels == "linear"
     sims = select_sequences(store, "test")[:6]
     truth = gather_truth(store, sims)
     points = store.points[store.shape_id[sims]][:, :64]

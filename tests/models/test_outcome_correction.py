@@ -15,7 +15,7 @@ from physdyn.geometry.rotations import quat_multiply, rotvec_to_quat
 from physdyn.models.outcome_correction import (MIRROR_INPUTS, MIRROR_TARGETS, OutcomeCorrection, OutcomeNet,
                                                outcome_inputs, yaw_of)
 from physdyn.predict.predictor import contact_prior_predictor
-from tests.conftest import refuse_pybullet
+from tests.conftest import module_level_imports, refuse_pybullet
 
 
 @pytest.fixture(scope="module")
@@ -418,25 +418,7 @@ def x_spin(mesh) -> float:
 def test_the_correction_and_topple_pointnet_import_no_store_or_mesh_library():
     """What a correction needs to train and predict loads without zarr or trimesh (a GPU machine for the studies
     has neither): their modules' own imports, followed through the package, reach neither."""
-    import ast
-    import importlib.util
-
-    seen, todo, reached = set(), ["physdyn.models.outcome_correction"], set()
-    while todo:
-        name = todo.pop()
-        if name in seen:
-            continue
-        seen.add(name)
-        tree = ast.parse(open(importlib.util.find_spec(name).origin).read())
-        for node in tree.body:  # the module's own level: what importing it runs
-            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
-                     else [node.module] if isinstance(node, ast.ImportFrom) and node.module else [])
-            for imported in names:
-                reached.add(imported.split(".")[0])
-                if imported.startswith("physdyn."):
-                    todo.append(imported)
-                    parent = imported.rsplit(".", 1)[0]
-                    todo.extend(p for p in (parent,) if p != "physdyn" and importlib.util.find_spec(p).origin.endswith("__init__.py"))
+    seen, reached = module_level_imports("physdyn.models.outcome_correction")
     assert "physdyn.models.topple_classifier" in seen and "torch" in reached  # it did follow the package
     assert not {"zarr", "trimesh", "numcodecs", "pybullet", "open3d"} & reached, sorted(reached)
     assert not any(n.startswith("physdyn.data") for n in seen), sorted(seen)
