@@ -104,8 +104,27 @@ def refuse_pybullet(monkeypatch) -> None:
 
 
 def module_level_imports(module: str) -> tuple[set[str], set[str]]:
-    """What importing ``module`` imports, its package's modules followed through their own module-level
-    imports (not those inside functions) -> (the physdyn modules seen, the top-level packages reached)."""
+    """What importing ``module`` imports, its package's modules followed through what runs when they are
+    imported (module level, inside ``try``/``if``/``with`` and class bodies; not functions, not ``if
+    TYPE_CHECKING:``), with every parent package and ``from package import submodule`` -> (the physdyn
+    modules seen, the top-level packages reached)."""
+
+    def statements(body):
+        for node in body:
+            if isinstance(node, ast.If) and isinstance(node.test, ast.Name) and node.test.id == "TYPE_CHECKING":
+                yield from statements(node.orelse)
+            elif isinstance(node, (ast.If, ast.Try, ast.With, ast.ClassDef)):
+                for part in ("body", "orelse", "finalbody"):
+                    yield from statements(getattr(node, part, []))
+                for handler in getattr(node, "handlers", []):
+                    yield from statements(handler.body)
+            elif isinstance(node, (ast.Import, ast.ImportFrom)):
+                yield node
+
+    def modules(name: str) -> list[str]:  # the module and its parent packages (importing it runs them all)
+        parts = name.split(".")
+        return [".".join(parts[:i]) for i in range(2, len(parts) + 1)]
+
     seen, todo, reached = set(), [module], set()
     while todo:
         name = todo.pop()
@@ -113,14 +132,14 @@ def module_level_imports(module: str) -> tuple[set[str], set[str]]:
             continue
         seen.add(name)
         tree = ast.parse(open(importlib.util.find_spec(name).origin).read())
-        for node in tree.body:  # the module's own level: what importing it runs (not `if TYPE_CHECKING:`)
-            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
-                     else [node.module] if isinstance(node, ast.ImportFrom) and node.module else [])
+        for node in statements(tree.body):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module or ""]
             for imported in names:
                 reached.add(imported.split(".")[0])
                 if imported.startswith("physdyn."):
-                    todo.append(imported)
-                    parent = imported.rsplit(".", 1)[0]
-                    todo.extend(p for p in (parent,) if p != "physdyn" and importlib.util.find_spec(p).origin.endswith("__init__.py"))
+                    todo.extend(modules(imported))
+                    if isinstance(node, ast.ImportFrom) and importlib.util.find_spec(imported).submodule_search_locations:
+                        # `from physdyn.package import submodule`
+                        todo.extend(f"{imported}.{a.name}" for a in node.names
+                                    if importlib.util.find_spec(f"{imported}.{a.name}") is not None)
     return seen, reached
-

@@ -33,7 +33,8 @@ def open3d():
 
 
 def farthest_point_sample(points: np.ndarray, count: int) -> np.ndarray:
-    """points: (M, 3) -> (count, 3), greedy farthest-point order starting from points[0] (deterministic)."""
+    """points: (M, 3) -> (count, 3): the points greedy farthest-point sampling picks, starting from points[0]
+    (deterministic), in their order in ``points`` (open3d's), not the order they were picked in."""
     if count >= len(points):
         return np.asarray(points, dtype=np.float32)
     o3d = open3d()

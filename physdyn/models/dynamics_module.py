@@ -15,7 +15,7 @@ import torch
 from lightning import LightningModule
 
 from physdyn.errors import ConfigError
-from physdyn.models.dynamics_network import DynamicsNetwork
+from physdyn.models.dynamics_network import DynamicsNetwork, DynamicsPrediction  # noqa: F401 - DynamicsPrediction's old home
 from physdyn.models.optimizer import adam_with_schedule
 
 

@@ -16,7 +16,7 @@ import contextlib
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, MutableMapping
 
 import numpy as np
 import torch
@@ -166,7 +166,7 @@ class DynamicsNetwork(torch.nn.Module):
         self._hyperparameters = values
 
     @property
-    def hparams(self) -> dict:
+    def hparams(self) -> MutableMapping[str, Any]:
         """The config, normalisation and data facts this network was built from (its checkpoint's
         ``hyper_parameters``)."""
         return self._hyperparameters

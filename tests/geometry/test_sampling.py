@@ -6,7 +6,7 @@ import trimesh
 from scipy.spatial import ConvexHull
 
 from physdyn.errors import PhysdynError
-from physdyn.geometry.sampling import hull_surface_points, sample_surface_points, shape_points
+from physdyn.geometry.sampling import farthest_point_sample, hull_surface_points, sample_surface_points, shape_points
 from physdyn.predict.body import prepare_body
 
 
@@ -20,6 +20,14 @@ def _irregular_mesh() -> trimesh.Trimesh:
     rng = np.random.default_rng(3)
     mesh.vertices *= rng.uniform(0.8, 1.2, (len(mesh.vertices), 1))
     return mesh
+
+
+def test_farthest_point_sampling_keeps_the_picked_points_in_their_input_order():
+    """From points[0] it picks 10 (the farthest), then 5, and returns them in their order in the input: a
+    hull_surface cloud's first point stays its lowest hull vertex, where sampling started."""
+    points = np.array([[0.0, 0.0, 0.0], [5.0, 0.0, 0.0], [10.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    np.testing.assert_array_equal(farthest_point_sample(points, 3), points[[0, 1, 2]])
+    np.testing.assert_array_equal(farthest_point_sample(points, 2), points[[0, 2]])
 
 
 def test_hull_surface_cloud_holds_every_hull_vertex_and_has_the_mesh_hull():
