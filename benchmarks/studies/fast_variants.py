@@ -1,16 +1,19 @@
 """Variants of the shipped `fast` model judged where a choice may be made, and where its time goes
-(docs/ablations.md, "A cheaper fast", sixteenth session; docs/performance.md, nineteenth session).
+(docs/ablations.md, "A cheaper fast", sixteenth session, and "Measured and not built", twenty-third;
+docs/performance.md, nineteenth session).
 
-    python benchmarks/studies/fast_variants.py sets CKPT ...     # random_urdfs 100-159 and robosuite, every push
-    python benchmarks/studies/fast_variants.py topple CKPT ...   # topple accuracy on the frontier's pybullet set, (a) and (b)
+    python benchmarks/studies/fast_variants.py sets CKPT ...     # the study sets and the frontier's pybullet set, every push
+    python benchmarks/studies/fast_variants.py topple CKPT ... [--thresholds 0.4 0.5 0.6]   # topple accuracy by threshold
     python benchmarks/studies/fast_variants.py stages CKPT [--set pybullet]   # one new mesh's prediction, by stage
 
 ``sets``: final position over Coulomb sliding's (non-toppling medians), rotation (non-toppling) and topple
 accuracy on the two study sets of the fifteenth session (``outcome_inputs.py robosuite`` makes the robosuite
-store; the random_urdfs 100-159 store is docs/ablations.md's fourteenth-session one), each push predicted
-from its step-0 state with ``predict_many`` per mesh. ``topple``: the same predictions' topple accuracy on the
-frontier's pybullet set, a new mesh per push (a) and 512 pushes of each of two meshes (b) (the frontier's
-stores; ``benchmarks/frontier.py`` makes them). The frontier's wheel set is not read: nothing is chosen on it.
+store; the random_urdfs 100-159 store is docs/ablations.md's fourteenth-session one; a set whose store is
+absent is left out, said so) and on the frontier's pybullet set, a new mesh per push (a) and 512 pushes of
+each of two meshes (b) (the frontier's stores; ``benchmarks/frontier.py`` makes them), each push predicted
+from its step-0 state with ``predict_many`` per mesh. ``topple``: the topple accuracy of the same
+predictions on the pybullet set's (a) and (b) and random_urdfs 100-159, a push toppling where its highest
+probability reaches each of ``--thresholds``. The frontier's wheel set is not read: nothing is chosen on it.
 ``stages``: the frontier's regime (a) on one set, a fresh mesh a request and the predictor's caches emptied,
 each stage timed by wrapping the functions that run it (wall clock; run it on a quiet machine).
 CKPT: a checkpoint path or a shipped name (fast, bundled).
@@ -49,26 +52,42 @@ STUDY_SETS = {"random_urdfs 100-159": "runs/external_val_100/urdf_100_159_hull25
 FRONTIER = Path("runs/frontier")
 
 
-def predict_all(predictor, req) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Every request, one ``predict_many`` per mesh: final displacements (R, 3), orientations (R, 4), toppled (R,)."""
+def predict_all(predictor, req) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every request, one ``predict_many`` per mesh: final displacements (R, 3), orientations (R, 4), toppled (R,)
+    and the highest topple probability of each push (R,)."""
     meshes = {key: load_mesh(key) for key in dict.fromkeys(req.mesh)}
-    disp, q, toppled = np.zeros((len(req), 3)), np.zeros((len(req), 4)), np.zeros(len(req), bool)
+    disp, q, toppled, highest = np.zeros((len(req), 3)), np.zeros((len(req), 4)), np.zeros(len(req), bool), np.zeros(len(req))
     for key, idx in req.by_mesh().items():
         results = predictor.predict_many([meshes[key]] * len(idx), req.v0[idx], req.w0[idx],
                                          seconds=list(req.steps[idx] / predictor.rate_hz), orientation_xyzw=req.q0[idx])
         for r, res in zip(idx, results):
             disp[r], q[r], toppled[r] = res["com_position"][-1] - res["com_position"][0], res["orientation_xyzw"][-1], res["toppled"]
-    return disp, q, toppled
+            highest[r] = np.max(res["topple_probability"])
+    return disp, q, toppled, highest
+
+
+def pybullet_set_requests() -> dict:
+    """The frontier's pybullet set (benchmarks/frontier.py makes its stores): a new mesh per push (a), and 512
+    pushes of each of two meshes (b)."""
+    return {"pybullet (a)": requests_from_store(truth_store(collect_set("pybullet", FRONTIER, 60), 5)),
+            "pybullet (b)": requests_from_store(load_store(str(FRONTIER / "pybullet" / "meshes_60_one_mesh_2_truth_x512.zarr")),
+                                                horizon=30)}
 
 
 def sets(checkpoints: list[str]) -> None:
-    reqs = {name: requests_from_store(load_store(path)) for name, path in STUDY_SETS.items()}
+    reqs = {}
+    for name, path in STUDY_SETS.items():
+        if Path(path).exists():
+            reqs[name] = requests_from_store(load_store(path))
+        else:
+            print(f"{name}: no {path} here (docs/ablations.md says how it was made); left out")
+    reqs.update(pybullet_set_requests())
     print("| checkpoint | " + " | ".join(f"{n}: position / sliding, rotation, topple" for n in reqs) + " |")
     print("|---|" + "---|" * len(reqs))
     for checkpoint in checkpoints:
         predictor, cells = load_predictor(checkpoint), []
         for req in reqs.values():
-            disp, q, toppled = predict_all(predictor, req)
+            disp, q, toppled, _ = predict_all(predictor, req)
             still = ~req.toppled
             position = np.linalg.norm(disp - req.true_disp, axis=1)
             sliding = np.linalg.norm(req.slide_disp - req.true_disp, axis=1)
@@ -78,14 +97,18 @@ def sets(checkpoints: list[str]) -> None:
         print(f"| {checkpoint} | " + " | ".join(cells) + " |", flush=True)
 
 
-def topple(checkpoints: list[str]) -> None:
-    meshes = collect_set("pybullet", FRONTIER, 60)
-    reqs = {"(a)": requests_from_store(truth_store(meshes, 5)),
-            "(b)": requests_from_store(load_store(str(FRONTIER / "pybullet" / "meshes_60_one_mesh_2_truth_x512.zarr")), horizon=30)}
+def topple(checkpoints: list[str], thresholds: list[float]) -> None:
+    """Topple accuracy on the pybullet set's two regimes and random_urdfs 100-159, a push called toppling when
+    its probability reaches each threshold (the conventions' metrics use 0.5, ``TOPPLE_THRESHOLD``)."""
+    reqs = pybullet_set_requests()
+    reqs["random_urdfs 100-159"] = requests_from_store(load_store(STUDY_SETS["random_urdfs 100-159"]))
     for checkpoint in checkpoints:
         predictor = load_predictor(checkpoint)
-        cells = [f"{regime} {np.mean(predict_all(predictor, req)[2] == req.toppled):.3f}" for regime, req in reqs.items()]
-        print(f"{checkpoint}: topple accuracy on the pybullet set " + ", ".join(cells), flush=True)
+        for name, req in reqs.items():
+            highest = predict_all(predictor, req)[3]
+            cells = [f"{t:g}: {np.mean((highest >= t) == req.toppled):.3f}" for t in thresholds]
+            print(f"{checkpoint}, {name} ({len(req)} pushes, majority {max(req.toppled.mean(), 1 - req.toppled.mean()):.3f}): "
+                  + ", ".join(cells), flush=True)
 
 
 def stages(checkpoint: str, set_name: str) -> None:
@@ -150,6 +173,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("what", choices=("sets", "topple", "stages"))
     parser.add_argument("checkpoints", nargs="+")
+    parser.add_argument("--thresholds", type=float, nargs="+", default=[0.5],
+                        help="topple: the probabilities at which a push counts as toppling")
     parser.add_argument("--set", default="pybullet", choices=("pybullet",),
                         help="stages: the frontier set to time on (the wheel set is for measuring only)")
     args = parser.parse_args()
@@ -158,7 +183,7 @@ def main() -> None:
     if args.what == "sets":
         sets(args.checkpoints)
     elif args.what == "topple":
-        topple(args.checkpoints)
+        topple(args.checkpoints, args.thresholds)
     else:
         for checkpoint in args.checkpoints:
             stages(checkpoint, args.set)

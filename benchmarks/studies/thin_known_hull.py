@@ -80,10 +80,6 @@ def accuracy(checkpoint: str) -> None:
     import physdyn.predict.body as predict_body
     import physdyn.predict.predictor as predictor_module
 
-    for name, path in list(fast_variants.STUDY_SETS.items()):
-        if not Path(path).exists():
-            print(f"({name}: no store at {path}; left out)")
-            fast_variants.STUDY_SETS.pop(name)
     print("thinned by qhull:")
     rollout = predictor_module.rollout
     predictor_module.rollout = lambda *args, **kwargs: rollout(*args, **{**kwargs, "hull_counts": None})

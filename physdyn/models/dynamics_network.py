@@ -5,8 +5,8 @@ trained with (kept in its hyper-parameters with its config, so a checkpoint rest
 ``physdyn.eval.baselines.load_checkpoint``). The loss is computed in normalised units.
 
 ``DynamicsNetwork`` is plain torch: predicting, evaluating and fitting a correction or a classifier load a
-checkpoint into it without importing Lightning, which took most of a fresh ``physdyn predict`` process's
-10 s (docs/predict.md). ``physdyn.models.dynamics_module.DynamicsModel`` is the same network as the
+checkpoint into it without importing Lightning, which took 5 of a fresh ``physdyn predict`` process's
+11.6 s (docs/predict.md). ``physdyn.models.dynamics_module.DynamicsModel`` is the same network as the
 LightningModule that ``physdyn fit`` trains.
 """
 
