@@ -74,7 +74,8 @@ def test_predicting_imports_neither_lightning_nor_the_store_library():
     assert not {"lightning", "torchmetrics", "zarr"} & reached, sorted(reached)
 
 
-@pytest.mark.slow  # a fresh process: about 6 s, most of it importing torch, trimesh and open3d
+# a fresh process: about 6 s, most of it importing torch, trimesh and open3d (5 s more with Lightning, which
+# kept it in the slow suite until predictions stopped importing it)
 def test_predict_in_a_fresh_process_writes_what_main_writes(cli_run, meshes, checkpoint, tmp_path):
     # as a user runs it, with Python's import log: what the process imported, functions' imports included
     proc = subprocess.run([sys.executable, "-X", "importtime", "-m", "physdyn.cli",
