@@ -30,23 +30,24 @@ PUSH = ("--lin-vel", "0.8", "0", "0", "--ang-vel", "0", "0", "3")
 
 PYBULLET_SCRIPT = """
 import sys
-import numpy as np
 import pybullet as p
 import trimesh
 
 mesh = trimesh.load(sys.argv[1], force="mesh")
 hull = mesh.convex_hull
-volume = hull.volume
 mass = 1.0
 com = hull.center_mass
-inertia = hull.moment_inertia * (mass / volume)
+# the principal moments per unit mass, about axes turned into the body frame as PyBullet's inertial frame
+principal = hull.principal_inertia_components * (mass / hull.volume)
+w, x, y, z = trimesh.transformations.quaternion_from_matrix(hull.principal_inertia_transform.T)
 p.connect(p.DIRECT)
 p.setGravity(0, 0, -9.81)
 p.setTimeStep(1 / 120)
 p.createMultiBody(0, p.createCollisionShape(p.GEOM_PLANE))
 shape = p.createCollisionShape(p.GEOM_MESH, vertices=(hull.vertices - com).tolist())
-body = p.createMultiBody(mass, shape, basePosition=[0, 0, float(com[2] - hull.bounds[0, 2])])
-p.changeDynamics(body, -1, localInertiaDiagonal=np.linalg.eigvalsh(inertia).tolist(), lateralFriction=0.5)
+body = p.createMultiBody(mass, shape, basePosition=[0, 0, float(com[2] - hull.bounds[0, 2])],
+                         baseInertialFrameOrientation=[x, y, z, w])
+p.changeDynamics(body, -1, localInertiaDiagonal=principal.tolist(), lateralFriction=0.5)
 p.resetBaseVelocity(body, [0.8, 0, 0], [0, 0, 3])
 for _ in range(360):
     p.stepSimulation()
