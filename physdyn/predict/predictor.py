@@ -34,6 +34,7 @@ from physdyn.geometry.mass import vertical_inertia, world_inertia_per_mass
 from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_rotvec
 from physdyn.models.checkpoint_file import SHIPPED
 from physdyn.models.dynamics_network import DynamicsNetwork
+from physdyn.models.experiment_checks import check_experiment_config
 from physdyn.models.topple_classifier import given_points
 from physdyn.models.topple_pointnet import forget_thinned
 from physdyn.predict.body import PreparedBody, preparation_key, prepare_body
@@ -437,8 +438,8 @@ def contact_prior_predictor(physics: Any = None, rate_hz: float = 15.0, num_poin
     cloud with the body's own spin inertia, at the friction of ``physics`` (default: the conventions'). About
     0.1 ms a trajectory in a batch of one mesh's pushes; the planner screens candidates with it."""
     physics = physics or PhysicsConfig()
-    # the shipped preset, checked by the tests (training's full check also checks trainer keys, with Lightning)
-    cfg = load_config(ExperimentConfig, PRESETS / "experiment" / "contact_prior.yaml")
+    # the shipped preset, checked as training checks it but for the trainer's keys (those need Lightning's)
+    cfg = check_experiment_config(load_config(ExperimentConfig, PRESETS / "experiment" / "contact_prior.yaml"))
     info = {"rate_hz": float(rate_hz), "num_points": int(num_points), "points_method": "hull_surface",
             "friction": physics.lateral_friction_object * physics.lateral_friction_ground, "gravity": abs(physics.gravity)}
     model = DynamicsNetwork(cfg, Normalization(mode="std_inputs", input_mean=(0.0,) * 6, input_std=(1.0,) * 6), info)

@@ -99,3 +99,23 @@ def test_half_the_sub_steps_integrate_the_same_slide_and_spin_within_two_percent
         assert 0.0 < gap < 0.02 * travel
         turn = [2 * math.atan2(r["orientation_xyzw"][-1, 2], r["orientation_xyzw"][-1, 3]) for r in (fine, half)]
         assert abs(turn[0] - turn[1]) <= 0.02 * abs(turn[0])
+
+
+
+def test_a_broken_preset_is_refused_with_the_key_that_training_would_name(tmp_path, monkeypatch):
+    import shutil
+
+    import yaml
+
+    from physdyn import config
+    from physdyn.errors import ConfigError
+    from physdyn.predict import predictor
+
+    shutil.copytree(config.PRESETS, tmp_path / "configs")
+    preset = tmp_path / "configs" / "experiment" / "contact_prior.yaml"
+    raw = yaml.safe_load(preset.read_text())
+    raw["model"]["contact_substeps"] = 0  # the schema takes any int; only the config check refuses it
+    preset.write_text(yaml.safe_dump(raw))
+    monkeypatch.setattr(predictor, "PRESETS", tmp_path / "configs")
+    with pytest.raises(ConfigError, match="model.contact_substeps"):
+        contact_prior_predictor()
