@@ -44,12 +44,9 @@ MIRROR_INPUTS = np.array([1, -1, 1, -1, 1, -1, 1, 1, -1, 1, -1, 1, -1], dtype=np
 MIRROR_TARGETS = np.array([1, -1, 1, -1, 1, -1], dtype=np.float64)
 
 
-def samples(model, path, per_push, chunk=4096):
-    from physdyn.data.store import load_store
-    from physdyn.data.windows import store_spin_inertia, store_world_inertia
-    from physdyn.eval.rollout import rollout
-
-    store = load_store(path)
+def chosen_steps(store, per_push):
+    """The samples' pushes and steps: every non-toppling push's moving steps (speed over 0.02 m/s or spin
+    over 0.2 rad/s), at most ``per_push`` of them, evenly spread."""
     lengths = store.lengths()
     sims, frames = [], []
     for s in np.flatnonzero(store.topple_step < 0):
@@ -60,7 +57,16 @@ def samples(model, path, per_push, chunk=4096):
             f = f[np.linspace(0, len(f) - 1, per_push).round().astype(int)]
         sims += [s] * len(f)
         frames += list(f)
-    sims, frames = np.array(sims), np.array(frames)
+    return np.array(sims, dtype=np.int64), np.array(frames, dtype=np.int64)
+
+
+def samples(model, path, per_push, chunk=4096):
+    from physdyn.data.store import load_store
+    from physdyn.data.windows import store_spin_inertia, store_world_inertia
+    from physdyn.eval.rollout import rollout
+
+    store = load_store(path)
+    sims, frames = chosen_steps(store, per_push)
     out = {k: [] for k in ("inputs", "targets", "truth", "frame", "shape", "split", "push")}
     for i in range(0, len(sims), chunk):
         s, f = sims[i:i + chunk], frames[i:i + chunk]
@@ -86,6 +92,19 @@ def samples(model, path, per_push, chunk=4096):
     return d
 
 
+def print_scores(net, run, sets, inputs_of=lambda d: d["inputs"], clouds="clouds", chunk=8192):
+    """The network's one-step fit against the prior's (``score``) on each (name, samples, index) of ``sets``."""
+    for name, d, idx in sets:
+        x = torch.tensor((inputs_of(d)[idx] - run["inputs_mean"]) / run["inputs_std"], dtype=torch.float32)
+        cl = torch.tensor(np.einsum("bij,bnj->bni", d["frame"][idx], d[clouds][d["shape"][idx]]), dtype=torch.float32)
+        with torch.no_grad():
+            h = torch.cat([net(cl[i:i + chunk], x[i:i + chunk]) for i in range(0, len(x), chunk)]).numpy()
+        fix = h * run["targets_std"] + run["targets_mean"]
+        prior, learned = score(d, idx, None), score(d, idx, fix)
+        print(f"{name[-40:]:40s} change of w_z (spinning): prior {prior['w_z']:.3f}, network {learned['w_z']:.3f} | "
+              f"of the speed along: prior {prior['v_along']:.3f}, network {learned['v_along']:.3f}", flush=True)
+
+
 def merged(parts):
     out, offset = {}, 0
     for d in parts:
@@ -109,101 +128,25 @@ def score(d, idx, fix):
     return res
 
 
-def learned_rollout(model, store, sims, thin, steps, net=None, run=None, chunk=8192):
-    """The pushes ``sims`` of ``store`` rolled out ``steps`` 15 Hz steps from step 0: each step the prior's one
-    step from the roll-out's own state, then (with ``net``) the network's change added, the position and
-    orientation taking half the added change over the step; the network is off once the body has stopped.
-    Returns the states (p, q, v, w), each (B, steps + 1, 3 or 4)."""
-    from physdyn.data.windows import store_spin_inertia, store_world_inertia
-    from physdyn.eval.rollout import rollout
-    from physdyn.geometry.rotations import quat_multiply, rotvec_to_quat
-
-    first = store.start[sims]
-    q, p = store.orientation_xyzw[first].copy(), store.com_position[first].copy()
-    v, w = store.linear_velocity[first].copy(), store.angular_velocity[first].copy()
-    points = store.points[store.shape_id[sims]]
-    dt = 1.0 / 15.0
-    path = [(p, q, v, w)]
-    for _ in range(steps):
-        r = rollout(model, points, q, p, v, w, 1, spin_inertia=store_spin_inertia(store, sims, q),
-                    body_inertia=store_world_inertia(store, sims, q))
-        q1, p1 = r.orientation_xyzw[:, 1].copy(), r.com_position[:, 1].copy()
-        v1, w1 = r.linear_velocity[:, 1].copy(), r.angular_velocity[:, 1].copy()
-        moving = np.flatnonzero((np.linalg.norm(v, axis=1) > 0.02) | (np.linalg.norm(w, axis=1) > 0.2))
-        if net is not None and len(moving):
-            for part in np.array_split(moving, -(-len(moving) // chunk)):
-                turn = travel_turn(v[part])
-                rot = lambda x: np.einsum("bij,bj->bi", turn, x)  # noqa: E731
-                spin = store_spin_inertia(store, sims[part], q[part])
-                x = np.concatenate([rot(v[part]), rot(w[part]), spin[:, None], rot(v1[part] - v[part]), rot(w1[part] - w[part])], axis=1)
-                xs = torch.tensor((x - run["inputs_mean"]) / run["inputs_std"], dtype=torch.float32)
-                frame = turn @ quat_to_matrix(q[part])
-                cl = torch.tensor(np.einsum("bij,bnj->bni", frame, thin[store.shape_id[sims[part]]]), dtype=torch.float32)
-                with torch.no_grad():
-                    fix = net(cl, xs).numpy() * run["targets_std"] + run["targets_mean"]
-                back = lambda x: np.einsum("bji,bj->bi", turn, x)  # noqa: E731  travel -> world
-                dv, dw = back(fix[:, :3]), back(fix[:, 3:])
-                v1[part] += dv
-                w1[part] += dw
-                p1[part] += 0.5 * dt * dv
-                q1[part] = quat_multiply(rotvec_to_quat(0.5 * dt * dw), q1[part])
-                q1[part] /= np.linalg.norm(q1[part], axis=1, keepdims=True)
-        p, q, v, w = p1, q1, v1, w1
-        path.append((p, q, v, w))
-    return tuple(np.stack([s[i] for s in path], axis=1) for i in range(4))
-
-
-def load_step_network(saved):
-    run, widths = saved["run"], tuple(saved["widths"])
-    net = oc.ToppleNet(256, len(MIRROR_INPUTS), widths, outputs=6)
-    net.load_state_dict(run["state_dict"])
-    net.eval()
-    return net, run
-
-
-def closed(paths, saved, model):
-    """Roll each non-toppling push of ``paths`` out with the learned step in the loop (``learned_rollout``) and
-    with the prior alone through the same loop; the final errors at the truth's last step."""
-    from physdyn.data.store import load_store
-    from physdyn.geometry.rotations import quat_conjugate, quat_multiply, wrap_angle
-    from physdyn.geometry.sampling import thin_hull_surface
-
-    net, run = load_step_network(saved)
-    for path in paths:
-        store = load_store(path)
-        sims = np.flatnonzero(store.topple_step < 0)
-        n = store.lengths()[sims]
-        last = store.start[sims] + n - 1
-        thin = np.stack([thin_hull_surface(c, 64) for c in np.asarray(store.points)]).astype(np.float32)
-        finals = {}
-        for learned in (False, True):
-            P, Q, _, _ = learned_rollout(model, store, sims, thin, int(n.max()) - 1, *((net, run) if learned else ()))
-            rows = np.arange(len(sims))
-            end_p, end_q = P[rows, n - 1], Q[rows, n - 1]
-            dp = np.linalg.norm(end_p[:, :2] - store.com_position[last, :2], axis=1)
-            yaw = np.abs(wrap_angle(oc.yaw_of(quat_multiply(end_q, quat_conjugate(store.orientation_xyzw[last])))))
-            finals[learned] = (np.median(dp) * 100, np.degrees(np.median(yaw)))
-        print(f"{path[-40:]:40s} {len(sims)} pushes, final position / yaw error: prior alone {finals[False][0]:.2f} cm, "
-              f"{finals[False][1]:.1f} deg; with the learned step {finals[True][0]:.2f} cm, {finals[True][1]:.1f} deg", flush=True)
-
-
 def stack(train_paths, ext_paths, saved, model, steps, seeds):
+    from step_inputs import learned_rollout, load_networks
+
     """A correction of the end (fit-outcome's 13-input networks) fitted on the learned step's roll-outs to
-    rest, and scored on them: does it add to the learned step?"""
+    rest, and scored on them: does it add to the learned step? (The roll-out is step_inputs.py's.)"""
     from physdyn.data.store import load_store
     from physdyn.data.windows import store_spin_inertia
     from physdyn.geometry.rotations import wrap_angle
     from physdyn.geometry.sampling import thin_hull_surface
 
-    net, run = load_step_network(saved)
+    nets = load_networks([saved])
 
     def outcomes(path):
         store = load_store(path)
         sims = np.flatnonzero(store.topple_step < 0)
         n = store.lengths()[sims]
         first, last = store.start[sims], store.start[sims] + n - 1
-        thin = np.stack([thin_hull_surface(c, 64) for c in np.asarray(store.points)]).astype(np.float32)
-        P, Q, V, W = learned_rollout(model, store, sims, thin, int(n.max()) - 1 + oc.EXTRA_STEPS, net, run)
+        thin = np.stack([thin_hull_surface(c, 64) for c in np.asarray(store.points)])
+        P, Q, V, W = learned_rollout(model, store, sims, {64: thin}, int(n.max()) - 1 + oc.EXTRA_STEPS, nets)
         rows, end = np.arange(len(sims)), n - 1 + oc.EXTRA_STEPS
         q0, v0, w0 = store.orientation_xyzw[first], store.linear_velocity[first], store.angular_velocity[first]
         inputs, turn = oc.outcome_inputs(v0, w0, store_spin_inertia(store, sims, q0), store.com_position[first], q0,
@@ -267,10 +210,12 @@ def main():
 
         model = load_predictor("fast").model
         model.outcome_correction = model.topple_classifier = None
-        if a.cmd == "closed":
-            closed(a.external, torch.load(a.save, weights_only=False), model)
+        if a.cmd == "closed":  # the prior alone and with the learned step, in step_inputs.py's loop
+            from step_inputs import closed, load_networks
+
+            closed(a.external, load_networks([a.save]), model, True)
         else:
-            stack(a.train, a.external, torch.load(a.save, weights_only=False), model, a.steps, (0, 1))
+            stack(a.train, a.external, a.save, model, a.steps, (0, 1))
         return
     tr, ex, names = load_parts(a.out)
     train, val, test = (np.flatnonzero(tr["split"] == s) for s in (0, 1, 2))
@@ -287,15 +232,7 @@ def main():
     net = oc.ToppleNet(256, len(MIRROR_INPUTS), tuple(a.widths), outputs=6)
     net.load_state_dict(run["state_dict"])
     net.eval()
-    for name, d, idx in [("test split", tr, test)] + [(n, e, np.arange(len(e["split"]))) for n, e in zip(names, ex)]:
-        x = torch.tensor((d["inputs"][idx] - run["inputs_mean"]) / run["inputs_std"], dtype=torch.float32)
-        cl = torch.tensor(np.einsum("bij,bnj->bni", d["frame"][idx], d["clouds"][d["shape"][idx]]), dtype=torch.float32)
-        with torch.no_grad():
-            h = torch.cat([net(cl[i:i + 8192], x[i:i + 8192]) for i in range(0, len(x), 8192)]).numpy()
-        fix = h * run["targets_std"] + run["targets_mean"]
-        prior, learned = score(d, idx, None), score(d, idx, fix)
-        print(f"{name[-40:]:40s} change of w_z (spinning): prior {prior['w_z']:.3f}, network {learned['w_z']:.3f} | "
-              f"of the speed along: prior {prior['v_along']:.3f}, network {learned['v_along']:.3f}", flush=True)
+    print_scores(net, run, [("test split", tr, test)] + [(n, e, np.arange(len(e["split"]))) for n, e in zip(names, ex)])
 
 
 if __name__ == "__main__":
