@@ -28,7 +28,9 @@ averaged where several are given), from the push or from the truth's state some 
         --inputs prev1 prev2 [--history-noise 0.3] --seed 0 --save OUT.pt
     # here: closed loop, the prior alone against the learned step(s) in the same loop; --from-step K starts
     # from the truth's state K steps after the push (an oracle of the impact phase)
-    python benchmarks/studies/step_inputs.py closed --save A.pt [B.pt ...] --external ... [--from-step K]
+    python benchmarks/studies/step_inputs.py closed --save A.pt [B.pt ...] --external ... [--from-step K] [--perturb S]
+    # the roll-outs' speed and spin K steps after the push, against the truth's
+    python benchmarks/studies/step_inputs.py state-at --from-step K --save A.pt --external ...
     # teacher forced, by the time since the push
     python benchmarks/studies/step_inputs.py by-time --save A.pt [B.pt ...]
 """
@@ -201,11 +203,12 @@ def load_networks(paths):
     return nets
 
 
-def learned_rollout(model, store, sims, clouds, steps, nets=(), chunk=4096, start=0):
+def learned_rollout(model, store, sims, clouds, steps, nets=(), chunk=4096, start=0, perturb=0.0):
     """spin_step.learned_rollout with several networks (their changes averaged), each reading its own cloud
     size and extra inputs (the ground gap, the roll-out's own history) if it was trained so. ``clouds``:
     {points: (S, N, 3)}. ``start``: begin from the truth's state that many steps after the push (an oracle
-    of the steps before), the history's changes too."""
+    of the steps before), the history's changes too; ``perturb``: that state's speed and spin each scaled by
+    1 + perturb x a standard normal draw per push (seeded): how well must a model know the state there?"""
     from physdyn.data.windows import store_spin_inertia, store_world_inertia
     from physdyn.eval.rollout import rollout
     from physdyn.geometry.rotations import quat_multiply, rotvec_to_quat
@@ -213,6 +216,10 @@ def learned_rollout(model, store, sims, clouds, steps, nets=(), chunk=4096, star
     first = store.start[sims] + start
     q, p = store.orientation_xyzw[first].copy(), store.com_position[first].copy()
     v, w = store.linear_velocity[first].copy(), store.angular_velocity[first].copy()
+    if perturb:
+        rng = np.random.default_rng(0)
+        v *= 1.0 + perturb * rng.standard_normal((len(sims), 1))
+        w *= 1.0 + perturb * rng.standard_normal((len(sims), 1))
     points = store.points[store.shape_id[sims]]
     dt = 1.0 / 15.0
     path = [(p, q, v, w)]
@@ -262,7 +269,32 @@ def learned_rollout(model, store, sims, clouds, steps, nets=(), chunk=4096, star
     return tuple(np.stack([s[i] for s in path], axis=1) for i in range(4))
 
 
-def closed(paths, nets, model, with_prior, start=0):
+def state_at(paths, nets, model, k):
+    """How far the prior's and the learned step's roll-outs from the push are from the truth ``k`` steps in:
+    the speed's relative error, and the spin's about the vertical (pushes spinning over 2 rad/s at the push)."""
+    from physdyn.data.store import load_store
+    from physdyn.geometry.sampling import thin_hull_surface
+
+    for path in paths:
+        store = load_store(path)
+        sims = np.flatnonzero(store.topple_step < 0)
+        sims = sims[store.lengths()[sims] > k + 1]
+        full = np.asarray(store.points, dtype=np.float64)
+        clouds = {256: full, 64: np.stack([thin_hull_surface(c, 64) for c in full])}
+        t = store.start[sims] + k
+        speed, spin = np.linalg.norm(store.linear_velocity[t], axis=1), store.angular_velocity[t, 2]
+        spinning = np.abs(store.angular_velocity[store.start[sims], 2]) > 2.0
+        line = f"{path[-40:]:40s} {len(sims)} pushes, at {k}/15 s:"
+        for name, used in (("prior", ()), ("learned", nets)):
+            _, _, V, W = learned_rollout(model, store, sims, clouds, k, used)
+            dv = np.abs(np.linalg.norm(V[:, k], axis=1) - speed) / np.maximum(speed, 1e-3)
+            dw = np.abs(W[spinning, k, 2] - spin[spinning])
+            line += (f" {name}: speed {100 * np.median(dv):.0f} % off, spin {np.median(dw):.2f} rad/s off "
+                     f"({100 * np.median(dw / np.maximum(np.abs(spin[spinning]), 0.2)):.0f} % of the truth's);")
+        print(line, flush=True)
+
+
+def closed(paths, nets, model, with_prior, start=0, perturb=0.0):
     from physdyn.data.store import load_store
     from physdyn.geometry.rotations import quat_conjugate, quat_multiply, wrap_angle
     from physdyn.geometry.sampling import thin_hull_surface
@@ -278,7 +310,8 @@ def closed(paths, nets, model, with_prior, start=0):
         line = f"{path[-40:]:40s} {len(sims)} pushes, final position / yaw error:"
         for learned in ((False, True) if with_prior else (True,)):
             t0 = time.time()
-            P, Q, _, _ = learned_rollout(model, store, sims, clouds, int(n.max()) - 1, nets if learned else (), start=start)
+            P, Q, _, _ = learned_rollout(model, store, sims, clouds, int(n.max()) - 1, nets if learned else (), start=start,
+                                         perturb=perturb)
             rows = np.arange(len(sims))
             dp = np.linalg.norm(P[rows, n - 1, :2] - store.com_position[last, :2], axis=1)
             yaw = np.abs(wrap_angle(oc.yaw_of(quat_multiply(Q[rows, n - 1], quat_conjugate(store.orientation_xyzw[last])))))
@@ -289,7 +322,7 @@ def closed(paths, nets, model, with_prior, start=0):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("cmd", choices=["export", "slim", "train", "closed", "by-time"])
+    ap.add_argument("cmd", choices=["export", "slim", "train", "closed", "by-time", "state-at"])
     ap.add_argument("--train", nargs="*", default=[])
     ap.add_argument("--external", nargs="*", default=[])
     ap.add_argument("--out", default="runs/turn/step.npz")
@@ -306,7 +339,10 @@ def main():
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--minutes", type=float, default=None)
     ap.add_argument("--save", nargs="*", default=[])
-    ap.add_argument("--from-step", type=int, default=0, help="closed: start from the truth's state this many steps in")
+    ap.add_argument("--from-step", type=int, default=0,
+                    help="closed: start from the truth's state this many steps in; state-at: compare there")
+    ap.add_argument("--perturb", type=float, default=0.0,
+                    help="closed: scale the starting speed and spin by 1 + this x N(0, 1), per push")
     ap.add_argument("--no-prior", action="store_true", help="closed: skip the prior-alone roll-out")
     a = ap.parse_args()
     if a.cmd == "export":
@@ -331,7 +367,10 @@ def main():
 
         model = load_predictor("fast").model
         model.outcome_correction = model.topple_classifier = None
-        closed(a.external, load_networks(a.save), model, not a.no_prior, a.from_step)
+        if a.cmd == "state-at":
+            state_at(a.external, load_networks(a.save), model, a.from_step)
+        else:
+            closed(a.external, load_networks(a.save), model, not a.no_prior, a.from_step, a.perturb)
 
 
 if __name__ == "__main__":
