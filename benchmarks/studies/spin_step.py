@@ -60,13 +60,13 @@ def chosen_steps(store, per_push):
     return np.array(sims, dtype=np.int64), np.array(frames, dtype=np.int64)
 
 
-def samples(model, path, per_push, chunk=4096):
+def samples(model, path, per_push, chunk=4096, choose=chosen_steps):
     from physdyn.data.store import load_store
     from physdyn.data.windows import store_spin_inertia, store_world_inertia
     from physdyn.eval.rollout import rollout
 
     store = load_store(path)
-    sims, frames = chosen_steps(store, per_push)
+    sims, frames = choose(store, per_push)
     out = {k: [] for k in ("inputs", "targets", "truth", "frame", "shape", "split", "push")}
     for i in range(0, len(sims), chunk):
         s, f = sims[i:i + chunk], frames[i:i + chunk]

@@ -203,12 +203,14 @@ def load_networks(paths):
     return nets
 
 
-def learned_rollout(model, store, sims, clouds, steps, nets=(), chunk=4096, start=0, perturb=0.0):
+def learned_rollout(model, store, sims, clouds, steps, nets=(), chunk=4096, start=0, perturb=0.0, state=None):
     """spin_step.learned_rollout with several networks (their changes averaged), each reading its own cloud
     size and extra inputs (the ground gap, the roll-out's own history) if it was trained so. ``clouds``:
     {points: (S, N, 3)}. ``start``: begin from the truth's state that many steps after the push (an oracle
     of the steps before), the history's changes too; ``perturb``: that state's speed and spin each scaled by
-    1 + perturb x a standard normal draw per push (seeded): how well must a model know the state there?"""
+    1 + perturb x a standard normal draw per push (seeded): how well must a model know the state there?
+    ``state``: (p, q, v, w) to start from instead of the truth's (networks reading the history cannot).
+    The step is the model's (``model.prior_dt``)."""
     from physdyn.data.windows import store_spin_inertia, store_world_inertia
     from physdyn.eval.rollout import rollout
     from physdyn.geometry.rotations import quat_multiply, rotvec_to_quat
@@ -216,12 +218,14 @@ def learned_rollout(model, store, sims, clouds, steps, nets=(), chunk=4096, star
     first = store.start[sims] + start
     q, p = store.orientation_xyzw[first].copy(), store.com_position[first].copy()
     v, w = store.linear_velocity[first].copy(), store.angular_velocity[first].copy()
+    if state is not None:
+        p, q, v, w = (np.array(x, dtype=np.float64) for x in state)
     if perturb:
         rng = np.random.default_rng(0)
         v *= 1.0 + perturb * rng.standard_normal((len(sims), 1))
         w *= 1.0 + perturb * rng.standard_normal((len(sims), 1))
     points = store.points[store.shape_id[sims]]
-    dt = 1.0 / 15.0
+    dt = float(model.prior_dt)
     path = [(p, q, v, w)]
     # the velocities so far (the truth's before ``start``), for the networks that read the history
     lin = [store.linear_velocity[first - start + j] for j in range(start)] + [v]
