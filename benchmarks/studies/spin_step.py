@@ -129,10 +129,10 @@ def score(d, idx, fix):
 
 
 def stack(train_paths, ext_paths, saved, model, steps, seeds):
-    from step_inputs import learned_rollout, load_networks
-
     """A correction of the end (fit-outcome's 13-input networks) fitted on the learned step's roll-outs to
     rest, and scored on them: does it add to the learned step? (The roll-out is step_inputs.py's.)"""
+    from step_inputs import learned_rollout, load_networks
+
     from physdyn.data.store import load_store
     from physdyn.data.windows import store_spin_inertia
     from physdyn.geometry.rotations import wrap_angle
