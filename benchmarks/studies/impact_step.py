@@ -33,7 +33,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from spin_step import samples  # noqa: E402
-from step_inputs import learned_rollout, load_networks  # noqa: E402
+from step_inputs import learned_rollout, load_networks, state_errors  # noqa: E402
 
 IMPACT_SECONDS = 0.2
 
@@ -68,17 +68,6 @@ def clouds_of(store):
     return {256: full, 64: np.stack([thin_hull_surface(c, 64) for c in full])}
 
 
-def errors(store, sims, k15, V, W):
-    """The speed's relative error and the spin's (about the vertical) at 15 Hz step ``k15``, medians; the spin
-    over the pushes spinning faster than 2 rad/s at the push, relative to the truth's there."""
-    t = store.start[sims] + k15
-    speed, spin = np.linalg.norm(store.linear_velocity[t], axis=1), store.angular_velocity[t, 2]
-    spinning = np.abs(store.angular_velocity[store.start[sims], 2]) > 2.0
-    dv = np.abs(np.linalg.norm(V, axis=1) - speed) / np.maximum(speed, 1e-3)
-    dw = np.abs(W[spinning, 2] - spin[spinning]) / np.maximum(np.abs(spin[spinning]), 0.2)
-    return 100 * np.median(dv), 100 * np.median(dw)
-
-
 def at(path, save60, save15):
     """The state at 0.2 s from the push, four ways, on the 60 Hz store's test split."""
     from physdyn.data.store import load_store
@@ -89,17 +78,14 @@ def at(path, save60, save15):
     sims = np.flatnonzero((store.topple_step < 0) & (np.asarray(store.split) == 2))
     sims = sims[store.lengths()[sims] > n60]
     clouds = clouds_of(store)
-    t = store.start[sims] + n60
-    speed, spin = np.linalg.norm(store.linear_velocity[t], axis=1), store.angular_velocity[t, 2]
     spinning = np.abs(store.angular_velocity[store.start[sims], 2]) > 2.0
     print(f"{path}: {len(sims)} test pushes ({spinning.sum()} spinning over 2 rad/s at the push); at 0.2 s:")
     for name, model, steps, nets in (("prior, 15 Hz", fast, 3, []), ("learned step, 15 Hz", fast, 3, load_networks([save15])),
                                      ("prior, 60 Hz", prior60, n60, []), ("learned step, 60 Hz", prior60, n60, load_networks([save60]))):
         # the 15 Hz roll-outs read the 60 Hz store's every fourth state: learned_rollout starts at the push
         _, _, V, W = learned_rollout(model, store, sims, clouds, steps, nets)
-        dv = np.abs(np.linalg.norm(V[:, -1], axis=1) - speed) / np.maximum(speed, 1e-3)
-        dw = np.abs(W[spinning, -1, 2] - spin[spinning]) / np.maximum(np.abs(spin[spinning]), 0.2)
-        print(f"  {name:22s} speed {100 * np.median(dv):4.1f} % off, spin {100 * np.median(dw):4.1f} % off (medians)", flush=True)
+        speed, spin, _ = state_errors(store, sims, n60, V[:, -1], W[:, -1])
+        print(f"  {name:22s} speed {speed:4.1f} % off, spin {spin:4.1f} % off (medians)", flush=True)
 
 
 def closed(paths, save60, save15):
@@ -133,7 +119,7 @@ def closed(paths, save60, save15):
             end_p, end_q = P[rows, end], Q[rows, end]
             dp = np.linalg.norm(end_p[:, :2] - store.com_position[last, :2], axis=1)
             yaw = np.abs(wrap_angle(oc.yaw_of(quat_multiply(end_q, quat_conjugate(store.orientation_xyzw[last])))))
-            sv, sw = errors(store, sims, k15, *at02)
+            sv, sw, _ = state_errors(store, sims, k15, *at02)
             line += (f" {name}: at 0.2 s speed {sv:.1f} %, spin {sw:.1f} % off; final {100 * np.median(dp):.2f} cm, "
                      f"{np.degrees(np.median(yaw)):.1f} deg;")
         print(line, flush=True)

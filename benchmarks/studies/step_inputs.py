@@ -273,6 +273,18 @@ def learned_rollout(model, store, sims, clouds, steps, nets=(), chunk=4096, star
     return tuple(np.stack([s[i] for s in path], axis=1) for i in range(4))
 
 
+def state_errors(store, sims, k, v, w):
+    """How far velocities ``v``, ``w`` (B, 3) are from the truth's ``k`` recorded steps after each push: the
+    speed's relative error (%), and the spin's about the vertical (%, and rad/s) over the pushes spinning
+    faster than 2 rad/s at the push; medians."""
+    t = store.start[sims] + k
+    speed, spin = np.linalg.norm(store.linear_velocity[t], axis=1), store.angular_velocity[t, 2]
+    spinning = np.abs(store.angular_velocity[store.start[sims], 2]) > 2.0
+    dv = np.abs(np.linalg.norm(v, axis=1) - speed) / np.maximum(speed, 1e-3)
+    dw = np.abs(w[spinning, 2] - spin[spinning])
+    return (100 * np.median(dv), 100 * np.median(dw / np.maximum(np.abs(spin[spinning]), 0.2)), np.median(dw))
+
+
 def state_at(paths, nets, model, k):
     """How far the prior's and the learned step's roll-outs from the push are from the truth ``k`` steps in:
     the speed's relative error, and the spin's about the vertical (pushes spinning over 2 rad/s at the push)."""
@@ -285,16 +297,11 @@ def state_at(paths, nets, model, k):
         sims = sims[store.lengths()[sims] > k + 1]
         full = np.asarray(store.points, dtype=np.float64)
         clouds = {256: full, 64: np.stack([thin_hull_surface(c, 64) for c in full])}
-        t = store.start[sims] + k
-        speed, spin = np.linalg.norm(store.linear_velocity[t], axis=1), store.angular_velocity[t, 2]
-        spinning = np.abs(store.angular_velocity[store.start[sims], 2]) > 2.0
         line = f"{path[-40:]:40s} {len(sims)} pushes, at {k}/15 s:"
         for name, used in (("prior", ()), ("learned", nets)):
             _, _, V, W = learned_rollout(model, store, sims, clouds, k, used)
-            dv = np.abs(np.linalg.norm(V[:, k], axis=1) - speed) / np.maximum(speed, 1e-3)
-            dw = np.abs(W[spinning, k, 2] - spin[spinning])
-            line += (f" {name}: speed {100 * np.median(dv):.0f} % off, spin {np.median(dw):.2f} rad/s off "
-                     f"({100 * np.median(dw / np.maximum(np.abs(spin[spinning]), 0.2)):.0f} % of the truth's);")
+            speed, spin, spin_rad = state_errors(store, sims, k, V[:, k], W[:, k])
+            line += f" {name}: speed {speed:.0f} % off, spin {spin_rad:.2f} rad/s off ({spin:.0f} % of the truth's);"
         print(line, flush=True)
 
 
