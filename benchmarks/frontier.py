@@ -30,7 +30,8 @@ Two regimes:
     run; per mesh the body (``prepare_body``: cleaning, hull, mass properties; then its collision shape) is
     built inside the timing, once, and pushed from each step-0 state (velocities set directly, as
     ``simulate_from_state`` does); its cost per request is that build plus one roll-out. The steps take
-    turns mesh by mesh, and after each mesh's turn physdyn's predictors predict that mesh's requests one at
+    turns mesh by mesh (with them a step schedule, ``SCHEDULES``: 1/240 s for the first 8 frames, while the
+    push's contact settles, then 1/60 s, one body and world like the steps'), and after each mesh's turn physdyn's predictors predict that mesh's requests one at
     a time, request by request, so the shared machine's load and its drift over the run fall on all alike
     (before the nineteenth session PyBullet's rows were all timed before physdyn's, and two runs of the same
     code put `fast` at 0.88x and 1.15x of 1/120 s); costs are CPU time. ``--repeats N`` times every timed
@@ -96,6 +97,10 @@ from physdyn.sim.world import PhysicsWorld  # noqa: E402
 
 SETS = ("pybullet", "wheel")
 STEPS_HZ = (960, 480, 240, 120, 60)  # PyBullet's physics steps, 1/hz s
+# PyBullet with a fine step while the push's contact settles and a coarse one after, as a user who knows
+# where the fine step pays would run it: (fine hz, recorded frames at the fine step, coarse hz). Chosen on
+# the pybullet set (docs/ablations.md, "The push's first milliseconds"); a row of its own beside the steps.
+SCHEDULES = ((240, 8, 60),)
 CEILINGS = (("surface", 256), ("hull_surface", 256), ("hull_surface", 512), ("hull_surface", 1024))
 DEFAULT_PREDICTORS = ("fast=fast", "bundled=bundled", "contact_prior=contact_prior")  # the shipped ones and the planner's screen
 # Costs are this process's CPU time (one torch thread; PyBullet runs in-process): the machine is shared, and
@@ -128,26 +133,43 @@ class Outcome:
         self.toppled[r] = toppled
 
 
-def open_worlds(physics: PhysicsConfig) -> dict[int, PhysicsWorld]:
-    """One PyBullet world per physics step of ``STEPS_HZ``, each reused for every roll-out of the run."""
-    return {hz: PhysicsWorld(replace(physics, time_step=1.0 / hz)) for hz in STEPS_HZ}
+def open_worlds(physics: PhysicsConfig) -> dict[Any, PhysicsWorld]:
+    """One PyBullet world per physics step of ``STEPS_HZ`` (keyed by hz) and per step schedule of
+    ``SCHEDULES`` (keyed by the schedule, starting at its fine step), each reused for every roll-out of the run."""
+    worlds: dict[Any, PhysicsWorld] = {hz: PhysicsWorld(replace(physics, time_step=1.0 / hz)) for hz in STEPS_HZ}
+    worlds.update({plan: PhysicsWorld(replace(physics, time_step=1.0 / plan[0])) for plan in SCHEDULES})
+    return worlds
 
 
-def roll_out(world: PhysicsWorld, spec: Any, shape: int, req: Requests, r: int, rate_hz: float, out: Outcome) -> None:
+def roll_out(world: PhysicsWorld, spec: Any, shape: int, req: Requests, r: int, rate_hz: float, out: Outcome,
+             schedule: tuple[int, int, int] | None = None) -> None:
     """Request ``r`` on the body ``spec`` (collision shape ``shape`` of ``world``): at rest in its step-0
-    orientation, given its step-0 velocities, recorded until it rests or reaches its horizon."""
+    orientation, given its step-0 velocities, recorded until it rests or reaches its horizon. With a
+    ``schedule`` (fine hz, frames, coarse hz; ``world`` steps at the fine one) the first frames are
+    recorded at the fine step and the rest at the coarse one."""
     body = world.add_body(spec, shape)
+    frames = int(req.steps[r]) + 1
     try:
         place_at_rest(world, body, spec, req.q0[r])
         pb.resetBaseVelocity(body, req.v0[r].tolist(), req.w0[r].tolist(), physicsClientId=world.client)
         world.set_object_friction(body, req.friction[r] / world.physics.lateral_friction_ground)
-        traj = record(world, body, spec, rate_hz, max_frames=int(req.steps[r]) + 1)
+        fine = frames if schedule is None else min(frames, schedule[1] + 1)
+        parts = [record(world, body, spec, rate_hz, max_frames=fine)]
+        if len(parts[0]) == fine < frames:  # neither at rest nor at the horizon: on at the coarse step
+            world.set_time_step(1.0 / schedule[2])
+            try:
+                parts.append(record(world, body, spec, rate_hz, max_frames=frames - fine + 1))
+            finally:
+                world.set_time_step(1.0 / schedule[0])
     finally:
         world.remove_body(body)
-    out.set(r, traj.com_position, traj.orientation_xyzw, traj.topple_step >= 0)
+    # the coarse part starts from the fine part's last frame: it is recorded once
+    positions = np.concatenate([parts[0].com_position] + [p.com_position[1:] for p in parts[1:]])
+    orientations = np.concatenate([parts[0].orientation_xyzw] + [p.orientation_xyzw[1:] for p in parts[1:]])
+    out.set(r, positions, orientations, any(p.topple_step >= 0 for p in parts))
 
 
-def pybullet_rows(worlds: dict[int, PhysicsWorld], meshes: dict[str, trimesh.Trimesh], req: Requests, rate_hz: float,
+def pybullet_rows(worlds: dict[Any, PhysicsWorld], meshes: dict[str, trimesh.Trimesh], req: Requests, rate_hz: float,
                   new_mesh_each: bool, repeats: int = 1,
                   after_mesh: Callable[[np.ndarray], Any] = lambda idx: None) -> dict[int, Outcome]:
     """PyBullet on each mesh's convex hull with its exact mass properties, at each world's step. The body
@@ -173,7 +195,8 @@ def pybullet_rows(worlds: dict[int, PhysicsWorld], meshes: dict[str, trimesh.Tri
 
             seconds, (spec, shape) = best_of(repeats, make_body, meshes[key].copy)
             for r in idx:
-                rollouts[hz] += best_of(repeats, lambda _: roll_out(world, spec, shape, req, r, rate_hz, outs[hz]))[0]
+                rollouts[hz] += best_of(repeats, lambda _: roll_out(world, spec, shape, req, r, rate_hz, outs[hz],
+                                                                    hz if hz in SCHEDULES else None))[0]
             builds.append(seconds)
         build += float(np.median(builds))
         after_mesh(idx)
@@ -326,18 +349,26 @@ def ceiling_variants(predictors: dict[str, Predictor]) -> dict[tuple[str, int], 
     return variants
 
 
-def pybullet_table_rows(req: Requests, outs: dict[int, Outcome]) -> list[dict]:
-    return [make_row(f"PyBullet 1/{hz} s", "pybullet", req, out, hz=hz) for hz, out in outs.items()]
+def pybullet_table_rows(req: Requests, outs: dict[Any, Outcome], rate_hz: float) -> list[dict]:
+    """The fixed steps' rows (kind "pybullet", in ``STEPS_HZ`` order), then the schedules' ("pybullet_schedule")."""
+    rows = [make_row(f"PyBullet 1/{hz} s", "pybullet", req, outs[hz], hz=hz) for hz in STEPS_HZ]
+    return rows + [make_row(schedule_name(plan, rate_hz), "pybullet_schedule", req, outs[plan], schedule=list(plan))
+                   for plan in SCHEDULES]
 
 
-def regime_new_meshes(meshes: dict[str, trimesh.Trimesh], req: Requests, worlds: dict[int, PhysicsWorld],
+def schedule_name(plan: tuple[int, int, int], rate_hz: float) -> str:
+    fine, frames, coarse = plan
+    return f"PyBullet 1/{fine} s for the first {frames / rate_hz:.2f} s, then 1/{coarse} s"
+
+
+def regime_new_meshes(meshes: dict[str, trimesh.Trimesh], req: Requests, worlds: dict[Any, PhysicsWorld],
                       predictors: dict[str, Predictor], rate_hz: float, progress: Progress, repeats: int = 1) -> list[dict]:
     """Regime (a): each request a mesh new to the predictor; rows in table order."""
     rows = [make_row("Coulomb sliding (no rotation, no topple)", "baseline", req, sliding_outcome(req))]
     timer = OneAtATime(predictors, meshes, req, repeats)
-    rows += pybullet_table_rows(req, progress.measure("PyBullet at every step and physdyn one at a time, mesh by mesh",
+    rows += pybullet_table_rows(req, progress.measure("PyBullet at every step (and schedule) and physdyn one at a time, mesh by mesh",
                                                       lambda: pybullet_rows(worlds, meshes, req, rate_hz, new_mesh_each=True,
-                                                                            repeats=repeats, after_mesh=timer.run)))
+                                                                            repeats=repeats, after_mesh=timer.run)), rate_hz)
     one = timer.outcomes()
     batched = progress.measure("physdyn, batched", lambda: physdyn_batched(predictors, meshes, req, req.rounds(), False,
                                                                            repeats))
@@ -354,12 +385,12 @@ def regime_new_meshes(meshes: dict[str, trimesh.Trimesh], req: Requests, worlds:
     return add_cost_ratios(rows)
 
 
-def regime_one_mesh(meshes: dict[str, trimesh.Trimesh], req: Requests, worlds: dict[int, PhysicsWorld],
+def regime_one_mesh(meshes: dict[str, trimesh.Trimesh], req: Requests, worlds: dict[Any, PhysicsWorld],
                     predictors: dict[str, Predictor], rate_hz: float, progress: Progress, repeats: int = 1) -> list[dict]:
     """Regime (b): many pushes of each of a few meshes; rows in table order."""
     rows = [make_row("Coulomb sliding (no rotation, no topple)", "baseline", req, sliding_outcome(req))]
     rows += pybullet_table_rows(req, progress.measure("PyBullet, every step", lambda: pybullet_rows(
-        worlds, meshes, req, rate_hz, new_mesh_each=False, repeats=repeats)))
+        worlds, meshes, req, rate_hz, new_mesh_each=False, repeats=repeats)), rate_hz)
     batches = list(req.by_mesh().values())
     outs = progress.measure("physdyn, predict_many on one mesh", lambda: physdyn_batched(
         predictors, meshes, req, batches, one_object=True, repeats=repeats))

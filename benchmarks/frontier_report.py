@@ -66,7 +66,8 @@ median). Rotation: median final rotation error, non-toppling pushes (and all). C
 one core; "cost / PyBullet" gives one at a time / batched over PyBullet's cost at that step. Regime (a) treats
 every request as a new mesh: physdyn prepares each (a fresh copy; its content-keyed caches emptied, outside the
 timing) and batches one push of every mesh a call; PyBullet's cost is the build of the body (prepare_body +
-collision shape, the "build" column: per mesh the median of its timings at the five steps) plus one roll-out.
+collision shape, the "build" column: per mesh the median of its timings at the five steps and the schedule) plus one roll-out. The schedule row
+steps at 1/240 s for the first frames, while the push's contact settles, then at 1/60 s.
 Regime (b): one mesh object per mesh for physdyn, one body per mesh for PyBullet, both spread over the pushes.
 Ceilings: PyBullet at 1/960 s on the hull of the points (the body's own inertia), not timed."""
 
@@ -110,6 +111,9 @@ def plot(results: dict[str, dict], path: Path) -> None:
                 for row, x, y in zip(bullet, xs, ys):
                     ax.annotate(f"1/{row['hz']}", (x, y), textcoords="offset points", xytext=(3, 3), fontsize=7,
                                 color=colour_pb)
+                for row in (r for r in rows if r["kind"] == "pybullet_schedule"):
+                    ax.scatter(row["ms"]["one"], max(row[key], 1e-3), marker="*", color=colour_pb, s=70, zorder=3,
+                               label=f"{row['name']}, {what}")
                 for row in (r for r in rows if r["kind"] == "physdyn"):
                     colour = colours[names.index(row["name"]) % len(colours)]
                     y = max(row[key], 1e-3)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from physdyn.sim.bullet import pb
 
@@ -79,6 +81,16 @@ class PhysicsWorld:
                                          physicsClientId=self.client)
             self._substeps = substeps
         pb.stepSimulation(physicsClientId=self.client)
+
+    def set_time_step(self, time_step: float) -> None:
+        """Step at ``time_step`` from now on (a body keeps its state): a run can take a fine step while the
+        contact settles and a coarse one after (benchmarks/frontier.py's step schedule)."""
+        if not np.isfinite(time_step) or time_step <= 0:
+            raise ValueError(f"time_step must be a positive number of seconds, got {time_step}")
+        self.physics = replace(self.physics, time_step=float(time_step))
+        # as a new world steps: one physics step a call, no sub-stepping (setTimeStep alone would keep it)
+        pb.setPhysicsEngineParameter(fixedTimeStep=self.physics.time_step, numSubSteps=0, physicsClientId=self.client)
+        self._substeps = 1
 
     def remove_body(self, body: int) -> None:
         pb.removeBody(body, physicsClientId=self.client)

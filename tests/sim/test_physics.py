@@ -98,3 +98,28 @@ def test_simulation_stops_at_rest_or_time_cap():
     short = PhysicsConfig(max_duration=0.4)
     traj, _, _ = push(box, 2.0, height_fraction=0.5, physics=short)
     assert len(traj) == int(0.4 * 15) + 1  # the cap, step 0 included
+
+
+def test_a_world_steps_at_its_new_time_step_after_sub_steps():
+    """set_time_step: one call then runs one physics step of the new length, whatever sub-stepping ran
+    before. Bullet integrates v += g dt, then z += v dt, so a body dropped from rest falls g dt^2 in one
+    step of dt, and only 10/16 of that in four sub-steps of dt / 4 (what pb.setTimeStep alone leaves)."""
+    from physdyn.sim.bullet import pb
+
+    box = trimesh.creation.box((0.1, 0.1, 0.1))
+    spec = RigidBodySpec.from_mesh(box, exact_mass_properties(box, 100.0))
+    with PhysicsWorld(PhysicsConfig(time_step=1 / 240)) as world:
+        body = world.add_body(spec)  # created at z = 1 m, far above the ground
+
+        def drop(substeps: int) -> float:
+            pb.resetBasePositionAndOrientation(body, [0, 0, 1], [0, 0, 0, 1], physicsClientId=world.client)
+            pb.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=world.client)
+            world.step(substeps)
+            return 1.0 - pb.getBasePositionAndOrientation(body, physicsClientId=world.client)[0][2]
+
+        assert drop(4) == pytest.approx(G * (1 / 240) ** 2 * (1 + 2 + 3 + 4), rel=1e-6)
+        world.set_time_step(1 / 60)
+        assert drop(1) == pytest.approx(G * (1 / 60) ** 2, rel=1e-6)
+        assert drop(2) == pytest.approx(G * (1 / 60) ** 2 * (1 + 2), rel=1e-6)  # sub-steps of the new step
+        with pytest.raises(ValueError, match="time_step"):
+            world.set_time_step(0.0)
