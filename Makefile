@@ -46,7 +46,7 @@ quickstart: install
 	@echo "  model          runs/quickstart/best.ckpt, best_topple.ckpt (+ topple classifier), hybrid.ckpt (+ simulated start; logs: runs/quickstart/csv, tensorboard)"
 	@echo "  test report    reports/quickstart/report.md, metrics.json, *.png, viewer.html (open in a browser)"
 	@echo "  prediction     reports/quickstart/bracket.json, reports/quickstart/bracket.html (open in a browser)"
-	@echo "  frontier       reports/quickstart/frontier.md, frontier.png (the model beside PyBullet at 5 steps, new meshes)"
+	@echo "  frontier       reports/quickstart/frontier.md, frontier.png (the model beside PyBullet at 5 steps and a step schedule, new meshes)"
 	@echo
 	@$(PYTHON) -c "import json; print('verdict:', json.load(open('reports/quickstart/metrics.json'))['verdict'])"
 	@grep "against PyBullet at 1/120 s" reports/quickstart/frontier.md | sed 's/^/verdict: /'

@@ -66,8 +66,9 @@ median). Rotation: median final rotation error, non-toppling pushes (and all). C
 one core; "cost / PyBullet" gives one at a time / batched over PyBullet's cost at that step. Regime (a) treats
 every request as a new mesh: physdyn prepares each (a fresh copy; its content-keyed caches emptied, outside the
 timing) and batches one push of every mesh a call; PyBullet's cost is the build of the body (prepare_body +
-collision shape, the "build" column: per mesh the median of its timings at the five steps and the schedule) plus one roll-out. The schedule row
-steps at 1/240 s for the first frames, while the push's contact settles, then at 1/60 s.
+collision shape, the "build" column: per mesh the median of its timings at the five steps, and the same price
+for a step schedule) plus one roll-out. A schedule row steps at a fine step for a push's first frames, while
+its contact settles, then at a coarse one (its name gives both).
 Regime (b): one mesh object per mesh for physdyn, one body per mesh for PyBullet, both spread over the pushes.
 Ceilings: PyBullet at 1/960 s on the hull of the points (the body's own inertia), not timed."""
 

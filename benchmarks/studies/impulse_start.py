@@ -11,7 +11,7 @@ k / 64), and (2) its state after k steps, from which `fast` and the contact prio
 (non-toppling medians; position as a fraction of Coulomb sliding's). Starting from the truth after k steps
 tells what knowing the first k / 960 s exactly is worth.
 
-    python benchmarks/studies/impulse_start.py                 # the pybullet set, ~1 minute
+    python benchmarks/studies/impulse_start.py                 # the pybullet set, ~30 s
     python benchmarks/studies/impulse_start.py --steps 0 2 384
 
 Needs the frontier's truth store (runs/frontier/pybullet/meshes_60_truth_x5.zarr, made by
@@ -59,6 +59,7 @@ def truth_states(req: fr.Requests, physics: PhysicsConfig, parsed: dict, steps: 
             body = world.add_body(spec)
             place_at_rest(world, body, spec, req.q0[r])
             pb.resetBaseVelocity(body, list(map(float, req.v0[r])), list(map(float, req.w0[r])), physicsClientId=world.client)
+            world.set_object_friction(body, req.friction[r] / physics.lateral_friction_ground)
             for k in range(max(max(steps), FIRST_FRAME) + 1):
                 v, w = pb.getBaseVelocity(body, physicsClientId=world.client)
                 if k <= FIRST_FRAME:
@@ -76,6 +77,9 @@ def truth_states(req: fr.Requests, physics: PhysicsConfig, parsed: dict, steps: 
 
 def print_fractions(req: fr.Requests, states: dict[str, np.ndarray]) -> None:
     still = ~req.toppled
+    print(f"step 0, {still.sum()} non-toppling pushes: median spin about a horizontal axis "
+          f"{np.median(np.linalg.norm(req.w0[still, :2], axis=1)):.1f} rad/s, about the vertical "
+          f"{np.median(np.abs(req.w0[still, 2])):.1f} rad/s")
     for name in ("spin", "speed"):
         x = states[name]
         whole = x[:, FIRST_FRAME] - x[:, 0]

@@ -118,8 +118,10 @@ def test_a_world_steps_at_its_new_time_step_after_sub_steps():
             return 1.0 - pb.getBasePositionAndOrientation(body, physicsClientId=world.client)[0][2]
 
         assert drop(4) == pytest.approx(G * (1 / 240) ** 2 * (1 + 2 + 3 + 4), rel=1e-6)
-        world.set_time_step(1 / 60)
+        world.set_time_step(1 / 60)  # from four sub-steps to one step a call
         assert drop(1) == pytest.approx(G * (1 / 60) ** 2, rel=1e-6)
         assert drop(2) == pytest.approx(G * (1 / 60) ** 2 * (1 + 2), rel=1e-6)  # sub-steps of the new step
+        world.set_time_step(1 / 30)  # the same sub-steps a call as before it
+        assert drop(2) == pytest.approx(G * (1 / 30) ** 2 * (1 + 2), rel=1e-6)
         with pytest.raises(ValueError, match="time_step"):
             world.set_time_step(0.0)
