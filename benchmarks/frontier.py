@@ -31,8 +31,9 @@ Two regimes:
     built inside the timing, once, and pushed from each step-0 state (velocities set directly, as
     ``simulate_from_state`` does); its cost per request is that build plus one roll-out. The steps take
     turns mesh by mesh (with them a step schedule, ``SCHEDULES``: 1/240 s for the first 8 frames, while the
-    push's contact settles, then 1/60 s, one body and world like the steps'), and after each mesh's turn physdyn's predictors predict that mesh's requests one at
-    a time, request by request, so the shared machine's load and its drift over the run fall on all alike
+    push's contact settles, then 1/60 s, one body and world like the steps'), and after each mesh's turn
+    physdyn's predictors predict that mesh's requests one at a time, request by request, so the shared
+    machine's load and its drift over the run fall on all alike
     (before the nineteenth session PyBullet's rows were all timed before physdyn's, and two runs of the same
     code put `fast` at 0.88x and 1.15x of 1/120 s); costs are CPU time. ``--repeats N`` times every timed
     piece N times in a row (a fresh mesh and emptied caches each time) and keeps its fastest: it removes a
@@ -141,18 +142,25 @@ def open_worlds(physics: PhysicsConfig) -> dict[Any, PhysicsWorld]:
     return worlds
 
 
+def pushed_body(world: PhysicsWorld, spec: Any, req: Requests, r: int, shape: int | None = None) -> int:
+    """A body of ``spec`` in ``world`` (collision shape ``shape``, or a new one) as request ``r`` starts: at rest
+    in its step-0 orientation, given its step-0 velocities and its friction. The caller removes it."""
+    body = world.add_body(spec, shape)
+    place_at_rest(world, body, spec, req.q0[r])
+    pb.resetBaseVelocity(body, req.v0[r].tolist(), req.w0[r].tolist(), physicsClientId=world.client)
+    world.set_object_friction(body, req.friction[r] / world.physics.lateral_friction_ground)
+    return body
+
+
 def roll_out(world: PhysicsWorld, spec: Any, shape: int, req: Requests, r: int, rate_hz: float, out: Outcome,
              schedule: tuple[int, int, int] | None = None) -> None:
     """Request ``r`` on the body ``spec`` (collision shape ``shape`` of ``world``): at rest in its step-0
     orientation, given its step-0 velocities, recorded until it rests or reaches its horizon. With a
     ``schedule`` (fine hz, frames, coarse hz; ``world`` steps at the fine one) the first frames are
     recorded at the fine step and the rest at the coarse one."""
-    body = world.add_body(spec, shape)
+    body = pushed_body(world, spec, req, r, shape)
     frames = int(req.steps[r]) + 1
     try:
-        place_at_rest(world, body, spec, req.q0[r])
-        pb.resetBaseVelocity(body, req.v0[r].tolist(), req.w0[r].tolist(), physicsClientId=world.client)
-        world.set_object_friction(body, req.friction[r] / world.physics.lateral_friction_ground)
         fine = frames if schedule is None else min(frames, schedule[1] + 1)
         parts = [record(world, body, spec, rate_hz, max_frames=fine)]
         if len(parts[0]) == fine < frames:  # neither at rest nor at the horizon: on at the coarse step
@@ -370,9 +378,9 @@ def regime_new_meshes(meshes: dict[str, trimesh.Trimesh], req: Requests, worlds:
     """Regime (a): each request a mesh new to the predictor; rows in table order."""
     rows = [make_row("Coulomb sliding (no rotation, no topple)", "baseline", req, sliding_outcome(req))]
     timer = OneAtATime(predictors, meshes, req, repeats)
-    rows += pybullet_table_rows(req, progress.measure("PyBullet at every step (and schedule) and physdyn one at a time, mesh by mesh",
-                                                      lambda: pybullet_rows(worlds, meshes, req, rate_hz, new_mesh_each=True,
-                                                                            repeats=repeats, after_mesh=timer.run)), rate_hz)
+    label = "PyBullet at every step (and schedule) and physdyn one at a time, mesh by mesh"
+    rows += pybullet_table_rows(req, progress.measure(label, lambda: pybullet_rows(
+        worlds, meshes, req, rate_hz, new_mesh_each=True, repeats=repeats, after_mesh=timer.run)), rate_hz)
     one = timer.outcomes()
     batched = progress.measure("physdyn, batched", lambda: physdyn_batched(predictors, meshes, req, req.rounds(), False,
                                                                            repeats))

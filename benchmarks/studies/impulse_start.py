@@ -38,7 +38,6 @@ from physdyn.geometry.rotations import quat_conjugate, quat_multiply  # noqa: E4
 from physdyn.predict.body import prepare_body  # noqa: E402
 from physdyn.predict.predictor import contact_prior_predictor, load_predictor  # noqa: E402
 from physdyn.sim.bullet import pb  # noqa: E402
-from physdyn.sim.trajectory import place_at_rest  # noqa: E402
 from physdyn.sim.world import PhysicsWorld  # noqa: E402
 
 FIRST_FRAME = 64  # physics steps of 1/960 s in the first recorded step (15 Hz)
@@ -56,10 +55,7 @@ def truth_states(req: fr.Requests, physics: PhysicsConfig, parsed: dict, steps: 
     with PhysicsWorld(physics) as world:
         for r in range(R):
             spec = specs.get(req.mesh[r]) or specs.setdefault(req.mesh[r], prepare_body(parsed[req.mesh[r]]).spec)
-            body = world.add_body(spec)
-            place_at_rest(world, body, spec, req.q0[r])
-            pb.resetBaseVelocity(body, list(map(float, req.v0[r])), list(map(float, req.w0[r])), physicsClientId=world.client)
-            world.set_object_friction(body, req.friction[r] / physics.lateral_friction_ground)
+            body = fr.pushed_body(world, spec, req, r)
             for k in range(max(max(steps), FIRST_FRAME) + 1):
                 v, w = pb.getBaseVelocity(body, physicsClientId=world.client)
                 if k <= FIRST_FRAME:

@@ -39,8 +39,7 @@ from physdyn.config import PhysicsConfig, config_from_dict  # noqa: E402
 from physdyn.geometry.mesh_io import load_mesh  # noqa: E402
 from physdyn.predict.body import prepare_body  # noqa: E402
 from physdyn.predict.predictor import contact_prior_predictor  # noqa: E402
-from physdyn.sim.bullet import pb  # noqa: E402
-from physdyn.sim.trajectory import place_at_rest, record  # noqa: E402
+from physdyn.sim.trajectory import record  # noqa: E402
 from physdyn.sim.world import PhysicsWorld  # noqa: E402
 
 THEN_PRIOR = ((120, 3), (120, 6), (120, 8), (240, 3), (240, 6), (240, 8))  # (fine hz, recorded frames)
@@ -64,10 +63,7 @@ def then_prior(world: PhysicsWorld, bodies: dict, req: fr.Requests, frames: int,
         fastest = (np.inf, np.inf)
         for _ in range(repeats):
             t0 = time.process_time()
-            body = world.add_body(spec, shape)
-            place_at_rest(world, body, spec, req.q0[r])
-            pb.resetBaseVelocity(body, req.v0[r].tolist(), req.w0[r].tolist(), physicsClientId=world.client)
-            world.set_object_friction(body, req.friction[r] / world.physics.lateral_friction_ground)
+            body = fr.pushed_body(world, spec, req, r, shape)
             start = record(world, body, spec, rate_hz, max_frames=min(frames, int(req.steps[r])) + 1)
             world.remove_body(body)
             path, turns, toppled = start.com_position, start.orientation_xyzw, start.topple_step >= 0
