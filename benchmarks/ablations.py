@@ -1,8 +1,8 @@
-"""Training-recipe ablations: every lever of docs/ablations.md on the same store, split and seed.
+"""Training-recipe ablations: every lever of docs/research/training-recipe.md on the same store, split and seed.
 
     python benchmarks/ablations.py                          # all levers, 2,000 steps each (~1 h on 2 cores)
     python benchmarks/ablations.py --only paper,prior-coulomb --steps 500
-    python benchmarks/ablations.py --report-only            # rewrite docs/ablations.md from finished runs
+    python benchmarks/ablations.py --report-only            # rewrite the report from finished runs
 
 Each lever is the quickstart experiment (configs/experiment/quickstart.yaml) with a few ``key=value``
 overrides. A run trains under ``--out/<lever>`` (skipped when finished, so an interrupted sweep resumes),
@@ -168,7 +168,8 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=2000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default="runs/ablations")
-    parser.add_argument("--doc", default="docs/ablations.md")
+    parser.add_argument("--doc", default="runs/ablations/report.md",
+                        help="the Markdown report to write (docs/research/training-recipe.md quotes it)")
     parser.add_argument("--only", default="", help="comma-separated lever names (default: all)")
     parser.add_argument("--report-only", action="store_true", help="no training: report the finished runs")
     args = parser.parse_args()
@@ -188,6 +189,7 @@ def main() -> None:
               f"{m['final_rotation_deg_median']:.1f} deg, topple acc {m['topple_accuracy']:.3f}", flush=True)
     if results:
         doc = Path(args.doc)
+        doc.parent.mkdir(parents=True, exist_ok=True)
         kept = ""
         if doc.is_file() and NOTES_MARK in doc.read_text():  # hand-written conclusions survive a rerun
             kept = doc.read_text().split(NOTES_MARK, 1)[1]

@@ -1,14 +1,13 @@
 """Variants of the shipped `fast` model judged where a choice may be made, and where its time goes
-(docs/ablations.md, "A cheaper fast", sixteenth session, and "Measured and not built", twenty-third;
-docs/performance.md, nineteenth session).
+(docs/research/fast-cost.md, docs/research/topple-from-cloud.md, docs/research/outcome-correction.md).
 
     python benchmarks/studies/fast_variants.py sets CKPT ...     # the study sets and the frontier's pybullet set, every push
     python benchmarks/studies/fast_variants.py topple CKPT ... [--thresholds 0.4 0.5 0.6]   # topple accuracy by threshold
     python benchmarks/studies/fast_variants.py stages CKPT [--set pybullet]   # one new mesh's prediction, by stage
 
 ``sets``: final position over Coulomb sliding's (non-toppling medians), rotation (non-toppling) and topple
-accuracy on the two study sets of the fifteenth session (``outcome_inputs.py robosuite`` makes the robosuite
-store; the random_urdfs 100-159 store is docs/ablations.md's fourteenth-session one; a set whose store is
+accuracy on the two study sets (``outcome_inputs.py robosuite`` makes the robosuite store;
+``impact_pointnet.py``'s docstring makes the random_urdfs 100-159 store; a set whose store is
 absent is left out, said so) and on the frontier's pybullet set, a new mesh per push (a) and 512 pushes of
 each of two meshes (b) (the frontier's stores; ``benchmarks/frontier.py`` makes them), each push predicted
 from its step-0 state with ``predict_many`` per mesh. ``topple``: the topple accuracy of the same
@@ -80,7 +79,7 @@ def sets(checkpoints: list[str]) -> None:
         if Path(path).exists():
             reqs[name] = requests_from_store(load_store(path))
         else:
-            print(f"{name}: no {path} here (docs/ablations.md says how it was made); left out")
+            print(f"{name}: no {path} here (this docstring says how it is made); left out")
     reqs.update(pybullet_set_requests())
     print("| checkpoint | " + " | ".join(f"{n}: position / sliding, rotation, topple" for n in reqs) + " |")
     print("|---|" + "---|" * len(reqs))

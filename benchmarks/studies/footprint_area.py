@@ -1,6 +1,6 @@
 """The contact prior's footprint as the 4 touching points spanning the largest area (greedily, as Bullet's
-contact manifold keeps its points) instead of farthest-point sampling: ``model.contact_footprint=area``,
-an option since this study. Patches ``contact_geometry`` for this run only, so that the bundled model's
+contact manifold keeps its points) instead of farthest-point sampling, as the option
+``model.contact_footprint=area`` does (docs/research/contact-prior.md). Patches ``contact_geometry`` for this run only, so that the bundled model's
 weights and the prior alone use it (and, for ``facet`` and ``flat``, other candidate points).
 
     python benchmarks/studies/footprint_area.py val [band|facet|flat] # quickstart validation: the prior alone, the bundled model

@@ -1,6 +1,6 @@
 """Can the impact phase be learned from step-0 features? The bundled model's accuracy on new meshes comes
-from simulating the first 0.4 s (docs/ablations.md, "Simulate the impact, learn the rest"); issue #26 lists
-"a learned map from step 0 to the state at 0.4 s" as a lever. Before building one, this measures how much
+from simulating the first 0.4 s (docs/research/simulated-start.md). Could a learned map from step 0 to the
+state at 0.4 s replace that? This measures how much
 of the contact prior's error at 0.4 s (K = 6 steps at 15 Hz) a small MLP on the step-0 features of the
 topple classifier (physdyn/models/topple_classifier.py, 32 heading-free features) plus the step-0 spin in the
 travel frame and the prior's own state at step K takes off, trained on one store's training split, scored on its validation and test

@@ -16,8 +16,8 @@ and scored on shapes it never saw: the store's validation and test splits and an
     python benchmarks/studies/impact_pointnet.py train runs/impact/many.npz --k 6 \
         --runs 0:300 0:1000 0:all 1:all 0,1:all 0,1:all:scalars --device cuda --steps 10000 --batch 1024
 
-Fourteenth session: real irregular meshes (random_urdfs 160-999) in training, the frontier's wheel meshes
-scored apart (measured only), and half of each batch mirrored across its travel:
+Real irregular meshes (random_urdfs 160-999) in training, the frontier's wheel meshes scored apart
+(measured only), and half of each batch mirrored across its travel (docs/research/learned-impact.md):
 
     python -c "import sys; sys.path.insert(0, 'benchmarks'); from pathlib import Path; \
         from external_meshes import collect_meshes, mesh_folder_store; o = ('points_method=hull_surface', 'num_points=256'); \

@@ -16,7 +16,7 @@ tells what knowing the first k / 960 s exactly is worth.
 
 Needs the frontier's truth store (runs/frontier/pybullet/meshes_60_truth_x5.zarr, made by
 benchmarks/frontier.py on first use). Only the pybullet set: the wheel set is for measuring, not for
-choosing a lever. docs/ablations.md, "The push's first milliseconds".
+choosing a lever. docs/research/impact-phase.md.
 """
 
 from __future__ import annotations

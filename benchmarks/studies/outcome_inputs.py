@@ -3,15 +3,16 @@ goes wrong, and the correction's inputs compared: the 13 it ships with (the push
 state) against those plus the roll-out's state at 2/15 s and 0.4 s, how long and how far it moved and the
 centre of mass's height. Three seeds of each, trained as ``fit-outcome`` trains (``train_outcome_network``)
 on the same three stores; scored on their validation and test splits, random_urdfs 100-159 and a third set
-of new meshes, robosuite 1.5.2's robot links, gripper parts, bases and objects (docs/ablations.md,
-"Correcting where the push ends").
+of new meshes, robosuite 1.5.2's robot links, gripper parts, bases and objects
+(docs/research/outcome-correction.md).
 
     python benchmarks/studies/outcome_inputs.py decompose             # the prior's error on the pybullet frontier set
     python benchmarks/studies/outcome_inputs.py robosuite             # the third set (downloads the wheel, ~1 min)
     python benchmarks/studies/outcome_inputs.py compare               # both inputs (about 10 min on the CPU)
 
 ``decompose`` needs the frontier's truth store (``python benchmarks/frontier.py --work runs/frontier`` makes
-it); ``compare`` the stores of docs/ablations.md's fourteenth-session sections and ``robosuite``'s.
+it); ``compare`` the three stores ``physdyn fit-outcome`` trains on (``impact_pointnet.py``'s docstring
+makes them) and ``robosuite``'s.
 """
 
 from __future__ import annotations

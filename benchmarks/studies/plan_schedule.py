@@ -9,7 +9,7 @@ check at the conventions' 1/960 s included. Then benchmarks/planning.py runs as 
 
     python benchmarks/studies/plan_schedule.py --goals 50 --budgets 1      # ~7 minutes
 
-docs/plan.md, "The step schedule in the planner" (twenty-fifth session).
+docs/plan.md, "The step schedule in the planner".
 """
 
 from __future__ import annotations

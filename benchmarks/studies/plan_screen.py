@@ -1,6 +1,6 @@
 """Which screen, and what the correction and the final check are worth: variants of `physdyn plan`'s screened
 search on benchmarks/planning.py's goals (real pushes of external meshes, upright, met within 2 cm and 15 deg
-by PyBullet at 1/960 s on the mesh). docs/plan.md, "Choosing the search", records what it printed.
+by PyBullet at 1/960 s on the mesh). docs/plan.md, "Choosing the search", and docs/research/index.md quote it.
 
     python benchmarks/studies/plan_screen.py --goals 50 --budget 1
     python benchmarks/studies/plan_screen.py --goals 50 --variants prior16 prior16-nocorr hull8 --hull-checkpoint runs/quickstart_hull/best.ckpt
@@ -8,7 +8,7 @@ by PyBullet at 1/960 s on the mesh). docs/plan.md, "Choosing the search", record
 Variants (NAME: screen x factor + ranking step, all with the final check unless "-nocheck"):
 prior16 (the default), prior16-nocorr (no nearest-neighbour correction), prior16-120 (PyBullet 1/120 s ranks),
 prior32-120, net4 (the bundled networks without simulator screen 4x), bundled-alone (the bundled model as the
-search's only model, no check: the previous default), hull8 (a network trained on
+search's only model, no check), hull8 (a network trained on
 hull_surface clouds, --hull-checkpoint, screens 8x), fast16 and fast8 (the shipped `fast` model, nothing
 simulated: the contact prior, its outcome correction and topple PointNet, screens 16x or 8x), and PyBullet alone
 at 1/240, 1/120 and 1/60 s.

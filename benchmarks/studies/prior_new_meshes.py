@@ -1,6 +1,6 @@
 """Why the networks add nothing on meshes new to them: the contact prior alone against the truth on the
 frontier's pybullet set (benchmarks/frontier.py's store), where its rotation error comes from, and how its
-spin deceleration compares with PyBullet's. docs/ablations.md, "The prior is the model on new meshes".
+spin deceleration compares with PyBullet's. docs/research/contact-prior.md.
 
     python benchmarks/studies/prior_new_meshes.py bins       # final errors by the push's spin and speed
     python benchmarks/studies/prior_new_meshes.py onestep    # fed the true state: spin change over one step, prior / truth

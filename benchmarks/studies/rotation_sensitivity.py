@@ -1,4 +1,4 @@
-"""How exactly must a predictor know the physics to land within issue #26's 10 degrees? PyBullet itself at
+"""How exactly must a predictor know the physics to land within 10 degrees? PyBullet itself at
 the truth's step (1/960 s), on each mesh's own hull, restarted from the recorded step-0 state as
 benchmarks/frontier.py's rows are, with one quantity changed by a small factor: the friction coefficient
 (the scale of every friction force and torque: what a learned model's deceleration must get right), the
@@ -10,7 +10,7 @@ unchanged row is the re-simulation floor, the frontier table's "PyBullet 1/960 s
     python benchmarks/studies/rotation_sensitivity.py --sets wheel --factors 1.01 0.99
 
 Needs the frontier's truth stores (runs/frontier/{pybullet,wheel}/meshes_60_truth_x5.zarr, made by
-benchmarks/frontier.py on first use). docs/ablations.md, "How exactly the physics must be known".
+benchmarks/frontier.py on first use). docs/research/friction-and-sensitivity.md.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Study: a model's roll-outs with ``model.sim_seconds`` set to each value given, on a store's split
-(docs/ablations.md, "Simulate the impact, learn the rest"): median final position and rotation of the
+(docs/research/simulated-start.md): median final position and rotation of the
 non-toppling pushes and the supplement's relative errors (Table 1's v, w, P, |theta|).
 
     python benchmarks/studies/sim_seconds_sweep.py CKPT STORE SPLIT SECONDS ... [--step HZ]

@@ -1,12 +1,13 @@
 """Can a network that reads the cloud in its current pose learn the simulator's one-step change of spin?
-(docs/ablations.md, "The whole turn", twenty-first session.)
+(docs/research/learned-step.md.)
 
-"The whole turn" found that issue #26's 10 degrees needs a push's spin deceleration right to about 7-8 %, and
+A rotation error of 10 degrees needs a push's spin deceleration right to about 7-8 %
+(docs/research/friction-and-sensitivity.md), and
 that a correction of where the contact prior stops cannot get there. The alternative is a learned step: a
 network that, fed the true state at a 15 Hz step (the cloud turned to its current orientation, in the frame
 of its current horizontal travel, with the velocities, I_zz / m and the contact prior's own one-step change
 from that state), gives the truth's change over the step. This measures how well such a network fits that
-change, teacher forced (every input from the truth), before anyone builds a learned roll-out around it.
+change, teacher forced (every input from the truth), and how it rolls out.
 
     python benchmarks/studies/spin_step.py export --train data/clusters_hull.zarr \\
         runs/urdf_train/urdf_160_999_x40_hull256.zarr --external runs/external_val_100/urdf_100_159_hull256.zarr \\

@@ -1,5 +1,4 @@
-"""Is the learned step's error floor its inputs? (docs/ablations.md, "The learned step's inputs",
-twenty-fourth session; issue #26.)
+"""Is the learned step's error floor its inputs? (docs/research/learned-step.md.)
 
 spin_step.py's learned step fits the simulator's one-step change of spin to 0.19 of the truth's change on
 random_urdfs, the same on shapes it trained on and on new ones, and neither width nor length moves it: a

@@ -17,7 +17,7 @@ schedule's cost, build included and the fastest of three, beside every fixed ste
     python benchmarks/studies/step_schedule.py                 # the pybullet set, ~2 minutes
 
 Only the pybullet set: the wheel set is for measuring, never for choosing (frontier.py measures the chosen
-schedule on both). docs/ablations.md, "The push's first milliseconds".
+schedule on both). docs/research/impact-phase.md.
 """
 
 from __future__ import annotations

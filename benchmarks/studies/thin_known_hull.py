@@ -1,15 +1,13 @@
 """Thinning a cloud with its hull known: a ``hull_surface`` cloud is built with its mesh's hull vertices first,
 so at prediction those can be taken as its hull instead of running qhull (physdyn/geometry/sampling.py,
 ``thin_hull_surface``). Does that thin as qhull's merged hull does, what does it save, and does it change
-the ``fast`` model's accuracy? (docs/ablations.md: "Reading the cloud where the push ends", eighteenth
-session, measured the first question and did not build it; "Thinning from the known hull", twenty-second
-session, measured the other two and built it.)
+the ``fast`` model's accuracy? (docs/research/fast-cost.md.)
 
     python benchmarks/studies/thin_known_hull.py clouds [FOLDER ...] [--points 256] [--count 64]
     python benchmarks/studies/thin_known_hull.py accuracy CKPT
 
-``clouds``: for each mesh (default: pybullet_data's random_urdfs 000-999; the eighteenth session's folders
-were runs/frontier/pybullet/meshes_60 runs/external_val_100/meshes runs/robosuite/meshes), its prepared
+``clouds``: for each mesh (default: pybullet_data's random_urdfs 000-999; the study sets' folders
+are runs/frontier/pybullet/meshes_60 runs/external_val_100/meshes runs/robosuite/meshes), its prepared
 body's ``hull_surface`` cloud: whether qhull (``THIN_QHULL_OPTIONS``, facets merged within 1e-7) marks exactly
 its first min(H, N) points, whether the thinned clouds are equal, and the time of each thinning.
 ``accuracy``: ``fast_variants.py sets`` (every push of the sets a choice may be made on) with clouds thinned

@@ -1,7 +1,7 @@
 """Can a network read toppling from the step-0 cloud alone, given thousands of shapes? Toppling is the one
-target that needs no precision in the physics (docs/ablations.md, "How exactly the physics must be known":
-the simulator with its friction or its push 10 % off still scores 0.97-1.00), yet no classifier without a
-simulator has reached issue #26's 0.95 (the step-0 logistic regression 0.89-0.90, a small MLP on its
+target that needs no precision in the physics (docs/research/friction-and-sensitivity.md:
+the simulator with its friction or its push 10 % off still scores 0.97-1.00), yet classifiers of step-0
+features without a simulator stay below 0.95 (the step-0 logistic regression 0.89-0.90, a small MLP on its
 features 0.90-0.91). This asks impact_pointnet.py's PointNet (the cloud turned to its step-0 orientation in
 the frame of the travel, the step-0 velocities and spins in that frame, I_zz / m) for the topple label of
 every push, toppling or not, trained on growing sets of shapes and scored on shapes it never saw.
@@ -11,8 +11,7 @@ every push, toppling or not, trained on growing sets of shapes and scored on sha
         runs/external_wheel/wheel_60_hull256.zarr --out runs/impact/topple.npz
     python benchmarks/studies/topple_pointnet.py train runs/impact/topple.npz --runs 0,1,2:all --mirror --device cuda
 
-The stores are those of impact_pointnet.py (its docstring makes them). docs/ablations.md, "Toppling from the
-cloud alone".
+The stores are those of impact_pointnet.py (its docstring makes them). docs/research/topple-from-cloud.md.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """The outcome correction's turn, unwrapped: does it gain from the roll-out's whole turn (an input) and a turn
-target relative to it? (docs/ablations.md, twenty-first session.)
+target relative to it? (docs/research/outcome-correction.md.)
 
 A push turns a median 206 degrees on the frontier's pybullet set, and the contact prior's whole turn is off by
 a factor (truth / prior: quartiles 1.04-1.62), yet the shipped correction reads and corrects the resting yaw
@@ -8,7 +8,8 @@ wrapped to [-pi, pi]: it cannot say "a fifth more turn". Kinds:
   B  14 inputs, the roll-out's unwrapped turn added; target (turn_truth - turn_rollout) / (|turn_rollout| + C);
   C  14 inputs as B, the target as A (wrapped).
 
-    # here: the stores as in docs/ablations.md; the roll-outs are `fast`'s prior (8 sub-steps)
+    # here: the stores as impact_pointnet.py's docstring makes them, the x40 one with 40 pushes a mesh in
+    # mesh_folder_store; the roll-outs are `fast`'s prior (8 sub-steps)
     python benchmarks/studies/unwrapped_turn.py export --train data/clusters_hull.zarr \
         runs/urdf_train/urdf_160_999_x40_hull256.zarr --external runs/external_val_100/urdf_100_159_hull256.zarr \
         runs/frontier/pybullet/meshes_60_truth_x5.zarr runs/external/external_30x10.zarr --out runs/turn/uc.npz

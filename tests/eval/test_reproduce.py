@@ -96,6 +96,22 @@ def test_a_second_invocation_skips_every_finished_run(tiny_suite):
 
 
 @pytest.mark.slow  # minutes-scale; CI runs it after the default suite
+def test_the_opening_a_person_wrote_above_the_generated_part_survives_regeneration(tiny_suite):
+    root, _, _, _ = tiny_suite
+    page = root / "opened.md"
+    generated = results_page.write_results(root / "out", page).read_text()
+    title, rest = generated.split("\n", 1)
+    page.write_text(f"{title}\n\n**The answer first.** Two lines a person wrote.\n\n{rest.lstrip()}")
+    again = results_page.write_results(root / "out", page).read_text()
+    assert again.startswith(f"{title}\n\n**The answer first.** Two lines a person wrote.\n\n<!-- Generated")
+    assert again.count("The answer first") == 1 and "## What differs from the paper" in again
+    # a page with no generated part (a person's own notes) is replaced whole, never spliced
+    notes = root / "notes.md"
+    notes.write_text("# My notes\n\nnothing generated here\n")
+    assert "nothing generated" not in results_page.write_results(root / "out", notes).read_text()
+
+
+@pytest.mark.slow  # minutes-scale; CI runs it after the default suite
 def test_an_interrupted_run_is_resumed_and_only_it_is_redone(tiny_suite):
     root, _, _, _ = tiny_suite
     out = root / "out"
