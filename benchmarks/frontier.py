@@ -1,5 +1,5 @@
 """The accuracy-cost frontier: physdyn's predictors against PyBullet at five physics steps and a step schedule,
-on meshes new to the model, every figure measured in one run on this machine (issue 26).
+on meshes new to the model, every figure measured in one run on this machine.
 
     python benchmarks/frontier.py                                # both sets, fast (the default), bundled and the contact prior
     python benchmarks/frontier.py --quick                        # a smoke check: a few meshes, about a minute
@@ -33,12 +33,11 @@ Two regimes:
     turns mesh by mesh (with them a step schedule, ``SCHEDULES``: 1/240 s for the first 8 frames, while the
     push's contact settles, then 1/60 s, one body and world like the steps'), and after each mesh's turn
     physdyn's predictors predict that mesh's requests one at a time, request by request, so the shared
-    machine's load and its drift over the run fall on all alike
-    (before the nineteenth session PyBullet's rows were all timed before physdyn's, and two runs of the same
-    code put `fast` at 0.88x and 1.15x of 1/120 s); costs are CPU time. ``--repeats N`` times every timed
+    machine's load and its drift over the run fall on all alike (timed one after the other instead, two runs
+    of the same code put `fast` at 0.88x and 1.15x of 1/120 s); costs are CPU time. ``--repeats N`` times every timed
     piece N times in a row (a fresh mesh and emptied caches each time) and keeps its fastest: it removes a
     request's stalls. The batched rows are timed after (the ceilings are not timed): compare ratios within a run
-    (docs/ablations.md, "A cheaper fast").
+    (docs/research/fast-cost.md).
 (b) many pushes of one mesh: ``--one-meshes`` meshes of each set, ``--one-mesh-pushes`` simulated pushes
     each, a ``--one-mesh-seconds`` horizon. physdyn: one ``predict_many`` per mesh on one mesh object
     (prepared once, inside the timing); PyBullet: the body built once per mesh; both spread over the pushes.
@@ -100,7 +99,7 @@ SETS = ("pybullet", "wheel")
 STEPS_HZ = (960, 480, 240, 120, 60)  # PyBullet's physics steps, 1/hz s
 # PyBullet with a fine step while the push's contact settles and a coarse one after, as a user who knows
 # where the fine step pays would run it: (fine hz, recorded frames at the fine step, coarse hz). Chosen on
-# the pybullet set (docs/ablations.md, "The push's first milliseconds"); a row of its own beside the steps.
+# the pybullet set (docs/research/impact-phase.md); a row of its own beside the steps.
 SCHEDULES = ((240, 8, 60),)
 CEILINGS = (("surface", 256), ("hull_surface", 256), ("hull_surface", 512), ("hull_surface", 1024))
 DEFAULT_PREDICTORS = ("fast=fast", "bundled=bundled", "contact_prior=contact_prior")  # the shipped ones and the planner's screen
@@ -311,7 +310,7 @@ def warm_up(predictor: Predictor, mesh: trimesh.Trimesh) -> None:
     """One untimed prediction: a user's process has loaded its libraries and weights before timing counts.
     open3d too: a cloud of a hull with more than 1,024 vertices is thinned with it, and its first import
     (0.7 s, it loads IPython and plotly) fell on the first predictor's first such mesh, about 2 ms a request
-    over the pybullet set's 300 (runs before the fifteenth session's charged it to the first predictor named)."""
+    over the pybullet set's 300, charged to the first predictor named unless it is imported here."""
     import open3d  # noqa: F401
 
     predictor.predict(mesh.copy(), [0.5, 0.0, 0.0], [0.0, 0.0, 0.0], seconds=0.5)

@@ -1,4 +1,4 @@
-"""Topple accuracy of the bundled model's topple head against step-0 classifiers (docs/model-card.md, "Toppling").
+"""Topple accuracy of the bundled model's topple head against step-0 classifiers (docs/research/topple-from-cloud.md).
 
     python benchmarks/topple.py            # quickstart test split; thresholds chosen on its validation split
 

@@ -30,7 +30,7 @@ S = TypeVar("S")
 class PhysicsConfig:
     """PyBullet settings. Defaults are the paper's where it says, see docs/conventions.md."""
 
-    # 1/960 s (conventions, 2026-11-23): at 1/240 s the contact chatters and non-toppling objects pick up a
+    # 1/960 s (the conventions): at 1/240 s the contact chatters and non-toppling objects pick up a
     # spurious tilt spin while sliding (median 0.59 rad/s) that a model would have to learn as noise.
     time_step: float = 1.0 / 960.0
     gravity: float = -9.81
@@ -379,13 +379,14 @@ class TrainDataConfig:
     val_windows_per_sim: int = 1
     val_seed: int = 12345  # validation windows are fixed by this seed
     # Scaling of inputs and targets: "max" (the paper's: one scale per quantity, its largest value) or "std"
-    # (per channel: mean and standard deviation of the training split). Measured in docs/ablations.md.
+    # (per channel: mean and standard deviation of the training split). Measured in docs/research/training-recipe.md.
     normalization: str = "max"
     # Share of training windows that start at step 0, as every roll-out does (the rest start at random).
     first_window_fraction: float = 0.0
     # Turn each training window about the vertical by a random angle (points, velocities, changes and
     # orientations alike): the physics does not depend on the heading, which the network otherwise has to
-    # learn from the pushes the data happens to hold. Measured in docs/ablations.md (within the seed spread).
+    # learn from the pushes the data happens to hold. Measured in docs/research/training-recipe.md (within the
+    # seed spread).
     yaw_augment: bool = False
 
 
@@ -400,10 +401,10 @@ class ModelConfig:
     # slowed by Coulomb friction mu g, mu the training data's median friction), "planar" (coulomb, spin
     # stopping with the slide, tilt damped) or "contact" (slide and spin integrated under friction over the
     # footprint read from the point cloud; needs orientation_input). See physdyn/models/priors.py and
-    # docs/ablations.md.
+    # docs/research/contact-prior.md.
     prior: str = "none"
     # With a prior: below both of these speeds (horizontal m/s, rad/s) the network's residual is switched off
-    # and the prior alone predicts the step (0: never). Chosen on validation, docs/ablations.md.
+    # and the prior alone predicts the step (0: never). Chosen on validation, docs/research/training-recipe.md.
     residual_gate_linear: float = 0.0
     residual_gate_angular: float = 0.0
     # Feed the object's current orientation relative to step 0 (6D rotation representation) at every step;
@@ -411,27 +412,27 @@ class ModelConfig:
     orientation_input: bool = False
     # The contact prior's spin inertia (I_zz / m): "points" estimates it from the cloud (0.8 x the points'
     # mean squared radius); "body" takes the body's mass properties where the caller knows them (a store's
-    # shapes, a mesh given to `physdyn predict`) and the estimate elsewhere. docs/ablations.md.
+    # shapes, a mesh given to `physdyn predict`) and the estimate elsewhere. docs/research/contact-prior.md.
     contact_inertia: str = "points"
     # How the contact prior picks its 4 footprint points among the cloud's lowest: "spread" (farthest-point
     # sampling, the presets') or "area" (the 4 spanning the largest area, as the simulator's contact manifold
     # keeps them: finds a box face's corners; better on the procedural shapes, worse on irregular blobs;
-    # docs/ablations.md, "Where the spin is lost"). Acts at inference too: `export --set` may change it.
+    # docs/research/contact-prior.md). Acts at inference too: `export --set` may change it.
     contact_footprint: str = "spread"
     # The contact prior's sub-steps per recorded step (16: 1/240 s at 15 Hz); fewer cost less and integrate
-    # more coarsely (docs/ablations.md, "Correcting where the push ends"). Acts at inference too (`export --set`).
+    # more coarsely (docs/research/fast-cost.md). Acts at inference too (`export --set`).
     contact_substeps: int = 16
     # With a prior: the channels the network's residual corrects. "all" (velocity, spin, position, rotation),
     # "linear" (velocity and position; spin and rotation are the prior's) or "angular" (spin and rotation).
     # A "linear" network gave the best positions measured; `python -m physdyn.models.export --linear-from`
-    # combines one with a model whose spin and rotation are better (docs/ablations.md, "Two networks").
+    # combines one with a model whose spin and rotation are better (docs/research/network-residual.md).
     residual_channels: str = "all"
     # Seconds at the start of a roll-out taken from PyBullet run on the point cloud's convex hull (the
     # body's inertia where the caller knows it, the conventions' physics step), rounded to recorded steps
     # (at least one), before the networks continue from the simulated state, their recurrent state warmed
     # up on the simulated velocities and orientations. 0: the networks from step 0 (the paper). Acts at
     # inference only (`export --set`): the impact phase is where the networks missed most
-    # (docs/ablations.md, "Simulate the impact, learn the rest").
+    # (docs/research/simulated-start.md).
     sim_seconds: float = 0.0
 
 

@@ -1,4 +1,4 @@
-"""Shared fixtures: small but real simulated stores, made once per test session."""
+"""Shared fixtures: small but real simulated stores, made once per pytest run."""
 
 from __future__ import annotations
 
@@ -35,7 +35,7 @@ def shared_root(tmp_path_factory) -> Path:
 
 
 def shared_store(tmp_path_factory, name: str, *extra: str) -> str:
-    """A tiny store simulated once per test session. `make test` runs the suite on two pytest-xdist workers:
+    """A tiny store simulated once per pytest run. `make test` runs the suite on two pytest-xdist workers:
     the first to ask simulates the store (12 s) under a lock in the run's common temporary folder, and the
     other reads it, rather than both simulating it at once. It is written beside its path and renamed, so a
     worker never reads half a store. Tests only read these stores."""

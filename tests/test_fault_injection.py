@@ -1,4 +1,4 @@
-"""The fault-injection suite (issue 28): kill -9 at random moments of real commands, and full-disk / I/O
+"""The fault-injection suite: kill -9 at random moments of real commands, and full-disk / I/O
 errors injected into every kind of output physdyn writes. After every fault the last good state must be
 intact: a resumed `simulate` gives the arrays of an uninterrupted run, a resumed `fit` continues from its last
 good checkpoint, and no half-written file sits under an output's name.

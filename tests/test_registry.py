@@ -269,16 +269,17 @@ def test_entry_point_without_a_distribution_is_named_by_its_value(fresh, monkeyp
 
 
 def test_the_documented_entry_point_groups_are_the_registries_and_the_example_plugins():
-    # What a plugin author reads (README) and copies (the example plugin's pyproject) must name the groups
-    # the registries actually scan.
+    # What a plugin author reads (the plugin guide's table of kinds) and copies (the example plugin's
+    # pyproject) must name the groups the registries actually scan.
     import re
     import tomllib
 
     from tests.conftest import REPO
 
     groups = {registry.group for registry in ALL_REGISTRIES.values()}
-    readme = (REPO / "README.md").read_text()
-    documented = set(re.findall(r"`(physdyn\.[a-z_]+)`", readme.split("entry-point groups", 1)[1][:300]))
+    guide = (REPO / "docs" / "plugins.md").read_text()
+    table = guide.split("| entry-point group |", 1)[1].split("\n\n", 1)[0]
+    documented = {re.findall(r"`(physdyn\.[a-z_]+)`", row)[-1] for row in table.splitlines()[2:]}
     assert documented == groups
     plugin = tomllib.loads((REPO / "plugins" / "physdyn-dgcnn" / "pyproject.toml").read_text())
     assert set(plugin["project"]["entry-points"]) <= groups and "physdyn.encoders" in plugin["project"]["entry-points"]

@@ -102,7 +102,7 @@ def test_a_worker_outliving_its_killed_parent_does_not_keep_the_lock(tmp_path):
         with write_lock(store):
             pass
     finally:
-        os.killpg(holder.pid, signal.SIGKILL)  # the orphaned child (same session)
+        os.killpg(holder.pid, signal.SIGKILL)  # the orphaned child (same process group)
 
 
 def test_one_process_cannot_take_its_own_lock_twice(tmp_path):
@@ -271,9 +271,9 @@ def test_lightning_checkpoints_are_written_beside_their_name_then_renamed(tmp_pa
 
 @pytest.mark.slow  # two small simulations: ~10 s
 def test_a_run_killed_while_removing_its_parts_is_completed_by_resume(tmp_path, monkeypatch):
-    """Found by the kill -9 suite: a kill inside finalize, after the final arrays were written, while the
-    parts were being deleted, left parts marked done without their arrays; --resume then crashed with
-    KeyError 'frames/com_position'. Now the written arrays are kept and the store is only marked complete."""
+    """A kill inside finalize, after the final arrays are written, while the parts are being deleted, must not
+    leave parts marked done without their arrays (--resume would fail with KeyError 'frames/com_position'):
+    resume keeps the written arrays and only marks the store complete."""
     from physdyn.data.simulated_store import generate_dataset
     from physdyn.data.store import StoreWriter, load_store
     from tests.sim.test_generate import assert_same_arrays

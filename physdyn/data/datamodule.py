@@ -1,7 +1,7 @@
 """The LightningDataModule: random training windows and fixed validation windows from one store.
 
 The whole store is read into memory once in ``setup`` (``load_store``); DataLoader workers never touch
-Zarr, which can deadlock in forked workers (method-notes section 7). Items are simulation indices; the
+Zarr, which can deadlock in forked workers. Items are simulation indices; the
 collate function draws window starts and point subsets for the whole batch at once and gathers the
 arrays with ``WindowSource`` (vectorised), so data loading stays a small share of a training step.
 """

@@ -1,4 +1,4 @@
-"""Scales that bring network inputs and targets to about unit size (method-notes section 4).
+"""Scales that bring network inputs and targets to about unit size (as the paper's reference code scales them).
 
 ``mode="max"`` (the paper's): v and w (and their changes) by their largest absolute component, dp by the
 largest per-step displacement, dtheta by the largest per-step angle. ``mode="std"``: each of the 6 velocity

@@ -1,4 +1,4 @@
-"""The reference code's evaluation metrics, as pure numpy functions (method-notes sections 5 and 8).
+"""The reference code's evaluation metrics, as pure numpy functions.
 
 Shapes: B sequences, S steps (transitions). Predicted and true changes are dicts of (B, S, 3) arrays keyed
 ``delta_linear_velocity``, ``delta_angular_velocity``, ``delta_position``, ``delta_rotation`` (world
@@ -19,7 +19,7 @@ Relative errors (``relative_errors``), for the supplement's Table 1, two documen
   change, sum_t ||x^_t - x_t|| / sum_t ||x_t|| (for ``angle``: sum_t | ||dtheta^_t|| - ||dtheta_t|| | /
   sum_t ||dtheta_t||), then averaged over sequences. A sequence whose true change is zero throughout is
   skipped (NaN). Resting steps add their error to the numerator but cannot blow up a ratio.
-- ``kind="step"``: the relative loss of method-notes section 3 per step, ||x^ - x|| / (||x|| + ||x^||)
+- ``kind="step"``: the paper's relative loss per step, ||x^ - x|| / (||x|| + ||x^||)
   (for ``angle`` with the scalars ||dtheta||), averaged over steps whose denominator exceeds ``eps`` (the
   reference's 0/0 on resting steps is skipped, not counted), then over sequences. Bounded in [0, 1].
 

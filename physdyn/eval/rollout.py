@@ -1,6 +1,6 @@
 """Roll-outs: the model predicts a whole trajectory from the state right after the push.
 
-As in the reference test code (method-notes section 5): the shape feature is computed once, from the
+As in the paper's reference test code: the shape feature is computed once, from the
 body-frame point cloud rotated into the world orientation of step 0; at each step the current velocities
 are fed with the recurrent state carried over; the predicted changes are added to v, w and p and the
 world-frame rotation is composed on the left, R_{t+1} = Exp(dtheta_t) R_t (physdyn's targets are
@@ -336,7 +336,7 @@ def simulated_start(model: Any, points_body: np.ndarray, q0: np.ndarray, p0: np.
         inertia = np.swapaxes(R, 1, 2) @ _numpy(body_inertia).reshape(-1, 3, 3) @ R
     rate = 1.0 / float(model.prior_dt)
     # the conventions' physics step (1/960 s), not the topple features' 1/240 s: at 1/240 s the contact
-    # chatter of the first steps cost Table 1's velocity error 23 % against 17 % (docs/ablations.md)
+    # chatter of the first steps cost Table 1's velocity error 23 % against 17 % (docs/research/simulated-start.md)
     with shared_simulator(PhysicsConfig().time_step) as simulator:
         sim = simulator.trajectories(_numpy(points_body), q0, _numpy(p0).reshape(-1, 3), _numpy(v0).reshape(-1, 3),
                                      _numpy(w0).reshape(-1, 3), float(model.prior_friction), steps, rate, inertia)

@@ -2,11 +2,11 @@
 
 - ``surface``: the paper's — oversample the surface, keep well-spread points by farthest-point sampling.
   Uniform samples miss the hull's corners, and contact with the ground depends only on the hull: PyBullet
-  itself, run on the hull of 256 such points, misses the true rotation by 27-29 deg (issue #26).
+  itself, run on the hull of 256 such points, misses the true rotation by 27-29 deg.
 - ``hull_surface``: every vertex of the mesh's convex hull first (thinned by farthest-point sampling only
   when there are more than ``num_points``), then uniform surface samples fill
   the rest. The set's hull is the mesh's hull whenever it has at most ``num_points`` vertices, so what
-  decides contact reaches the model intact (docs/ablations.md, "An input that keeps the contact geometry").
+  decides contact reaches the model intact (docs/research/points-and-encoders.md).
   No farthest-point pass over the fill: it costs milliseconds per mesh at prediction time.
 """
 

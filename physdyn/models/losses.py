@@ -1,4 +1,4 @@
-"""The paper's training loss (method-notes section 3), computed in normalised units.
+"""The paper's training loss, computed in normalised units.
 
 Per step and quantity, for x in {dv, dw, dp} with prediction x_hat:
 

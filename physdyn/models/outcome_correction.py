@@ -1,7 +1,7 @@
 """Where does the push end? A learned correction of a roll-out's resting pose (``physdyn fit-outcome``).
 
 A position 1/120 s PyBullet gets right asks for the friction's work right to about 2 % on every new mesh
-(docs/ablations.md, "How exactly the physics must be known"); the contact prior's slide is right to about
+(docs/research/friction-and-sensitivity.md); the contact prior's slide is right to about
 2.5 % and its path bends wrongly, and neither its per-step residual networks nor a map of the impact phase
 carried a gain to meshes they never saw. This corrects the end instead: a small network reads the push (the
 step-0 velocity and spin in the frame of its travel, I_zz / m) and where the roll-out came to rest (its
@@ -9,9 +9,8 @@ displacement along and across the travel, its turn about the vertical, and its l
 the truth minus that resting pose, trained on thousands of shapes' pushes, half of each batch mirrored
 across its travel. One network per seed, averaged. With ``fit-outcome --pointnet`` each network is a small
 PointNet that also reads the push's step-0 cloud in the frame of its travel (``ToppleNet`` with three
-outputs; docs/ablations.md, "Reading the cloud where the push ends"). Measured in docs/ablations.md ("Correcting where the
-push ends"), where richer inputs (the roll-out's state early in the impact, how long and how far it moved,
-the centre of mass's height) were tried and not kept.
+outputs). Measured in docs/research/outcome-correction.md, where richer inputs (the roll-out's state early in
+the impact, how long and how far it moved, the centre of mass's height) were tried and not kept.
 
 The correction is spread over the trajectory in proportion to the roll-out's own progress (the fraction of
 its horizontal path, and of its turning, covered by each step), so the path stays smooth, starts where it
@@ -107,7 +106,7 @@ class OutcomeCorrection:
 
     def __post_init__(self) -> None:
         if self.num_points:
-            # on numpy (``numpy_forward``), as the MLPs below: torch's per-call overhead was most of a push's cost
+            # on numpy (``numpy_forward``), as the MLPs below: torch's per-call overhead would be most of a push's cost
             self._pointnets = []
             for state in self.networks:
                 net = ToppleNet(self.width, INPUTS, tuple(self.point_widths), outputs=len(TARGETS))
@@ -115,7 +114,7 @@ class OutcomeCorrection:
                 self._pointnets.append(numpy_layers(net))
             return
         # The networks' layers stacked, on numpy: one prediction is a few small products, where torch's
-        # per-call overhead would cost a millisecond (issue #26 counts every one of a new mesh's)
+        # per-call overhead would cost a millisecond, and a new mesh's prediction pays it for every call
         for state in self.networks:
             OutcomeNet(self.width).load_state_dict(state)  # the state is a whole network of this width
         names = sorted({k.rsplit(".", 1)[0] for k in self.networks[0]}, key=lambda k: int(k.split(".")[1]))

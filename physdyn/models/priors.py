@@ -28,7 +28,7 @@ priors are pure functions of the velocities fed at step t, so teacher forcing an
   point's friction opposes its own sliding velocity v + w_z x r, so a spinning object slides farther and
   curves. Alone, with no learning, it predicts the final position of non-toppling quickstart objects at
   0.49-0.50x Coulomb sliding's median error and their rotation to 13-14 degrees with the body's inertia
-  (0.50-0.54x, 14-15 degrees with the estimate; ``python benchmarks/priors.py``; docs/ablations.md). It
+  (0.50-0.54x, 14-15 degrees with the estimate; ``python benchmarks/priors.py``; docs/research/contact-prior.md). It
   needs the shape (``contact_geometry``) and the orientation since the points were taken.
 """
 
@@ -169,7 +169,7 @@ def _largest_area(xy: torch.Tensor, touching: torch.Tensor) -> tuple[torch.Tenso
     the one farthest from the vertical through the centre of mass, the one farthest from it, then the
     farthest on each side of the line between them -> (indices (B, 4), whether each adds area (B, 4)).
     Farthest-point sampling finds two corners of a box's face and then the middles of its long edges; this
-    finds all four (docs/ablations.md, "Where the spin is lost")."""
+    finds all four (docs/research/contact-prior.md)."""
     at = lambda i: torch.gather(xy, 1, i[:, None, None].expand(-1, 1, 2))[:, 0]  # noqa: E731
     first = torch.argmax((xy ** 2).sum(-1).masked_fill(~touching, -1.0), dim=1)
     second = torch.argmax(((xy - at(first)[:, None]) ** 2).sum(-1).masked_fill(~touching, -1.0), dim=1)

@@ -1,6 +1,6 @@
 """Will it topple? A classifier of the whole sequence from what the model sees at step 0.
 
-Measured (docs/model-card.md, "Toppling"): the per-step topple head over a roll-out misses most topples,
+Measured (docs/research/topple-from-cloud.md): the per-step topple head over a roll-out misses most topples,
 because roll-outs corrected from the contact prior hardly tilt and the head learns from the label of the
 next step; yet whether a push topples the object is nearly decided at step 0 (re-simulating perturbed
 pushes flips about 1 % of outcomes). So the sequence is classified from physics-shaped features of the
@@ -170,7 +170,7 @@ class ToppleClassifier:
     num_points: int | None = None  # the cloud it was fitted on (None: all the store's points)
     # Each feature is clipped to [low, high] (the training split's 1st and 99th percentiles) before it is
     # standardised: the ratio features have tails of 1e6 that otherwise dominate mean, std and the fit.
-    # None: no clipping (classifiers fitted before it was added).
+    # None: no clipping (a classifier's file without the bounds).
     low: np.ndarray | None = None
     high: np.ndarray | None = None
     # Whether it also reads a short simulation of the cloud's hull (PHYSICS_FEATURE_NAMES; `fit-topple

@@ -1,10 +1,10 @@
 """Will it topple? Small PointNets over the step-0 cloud, no simulator (``physdyn fit-topple --pointnet``).
 
 Toppling is nearly decided at step 0, and it needs no precision in the physics: PyBullet with its friction or
-its push 10 % off still classifies 0.97-1.00 of the frontier's pushes (docs/ablations.md, "How exactly the
-physics must be known"). The logistic regression of ``topple_classifier.py`` reads hand-made features and
-stops near 0.90 on meshes it never saw; a network that reads the cloud itself reaches 0.95-0.96 once it is
-trained on thousands of shapes ("Toppling from the cloud alone").
+its push 10 % off still classifies 0.97-1.00 of the frontier's pushes (docs/research/friction-and-sensitivity.md).
+The logistic regression of ``topple_classifier.py`` reads hand-made features and stops near 0.90 on meshes it
+never saw; a network that reads the cloud itself reaches 0.95-0.96 once it is trained on thousands of shapes
+(docs/research/topple-from-cloud.md).
 
 Each network sees the cloud (``hull_surface`` points, body frame turned to its step-0 orientation) in the
 frame of the push's travel (x along the step-0 horizontal velocity, z up), each point's height above the
@@ -38,7 +38,7 @@ MIN_STEPS = 20  # training steps: the best of 20 validation checks is kept
 PUSHES_PER_PASS = 32  # pushes per forward pass at prediction (``_in_passes``; ``OutcomeCorrection.correction``)
 # Up to this many pushes the topple PointNet runs on numpy (``numpy_forward``), above it on torch: for one push
 # torch's per-layer dispatch is most of the cost (0.30 against 0.14 ms a push), for hundreds its products are
-# the cheaper (0.09 against 0.10-0.23 ms; docs/performance.md, nineteenth session)
+# the cheaper (0.09 against 0.10-0.23 ms; `python benchmarks/frontier.py`, docs/performance.md)
 NUMPY_PUSHES = 8
 POINT_WIDTHS = (64, 128)  # the per-point layers' widths before the last (of ``width``): the per-push cost
 THINNED_KEPT = 256  # thinned clouds the process keeps, the latest (``thinned_clouds``)
@@ -74,7 +74,7 @@ class ToppleNet(torch.nn.Module):
 def _in_passes(net: ToppleNet, cloud: torch.Tensor, scalars: torch.Tensor) -> torch.Tensor:
     """``net``'s outputs ((B,) logits, or (B, outputs)) a few pushes at a time: the per-point layers' activations of PUSHES_PER_PASS
     pushes stay in the CPU's cache, where those of 512 pushes (130 MB) do not: about 0.6x the cost a push
-    for 512, the same numbers to float32 rounding (docs/ablations.md, "A cheaper fast")."""
+    for 512, the same numbers to float32 rounding (docs/research/fast-cost.md)."""
     if len(cloud) <= PUSHES_PER_PASS:
         return net(cloud, scalars)
     return torch.cat([net(cloud[i : i + PUSHES_PER_PASS], scalars[i : i + PUSHES_PER_PASS])

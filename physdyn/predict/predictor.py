@@ -43,8 +43,8 @@ from physdyn.sim.cloud_body import forget_clouds
 from physdyn.sim.trajectory import resting_com_positions
 
 BUNDLED_CHECKPOINT = SHIPPED["bundled"]
-# The default: the shipped model no PyBullet step beats on both accuracy and cost, on new meshes (issue #26,
-# docs/performance.md); "bundled", which simulates inside each prediction, is dominated by PyBullet at 1/240 s.
+# The default: the shipped model no PyBullet step beats on both accuracy and cost, on new meshes
+# (docs/performance.md); "bundled", which simulates inside each prediction, is dominated by PyBullet at 1/240 s.
 DEFAULT_MODEL = "fast"
 DEFAULT_CHECKPOINT = SHIPPED[DEFAULT_MODEL]
 DEFAULT_NUM_POINTS = 1024
@@ -189,10 +189,12 @@ class Predictor:
 
     @property
     def rate_hz(self) -> float:
+        """The rate of the predicted trajectory (Hz): the rate of the store the model was trained on."""
         return float(self.model.data_info.get("rate_hz") or 15.0)
 
     @property
     def num_points(self) -> int:
+        """How many surface points the model reads from a mesh's cloud."""
         return int(getattr(self.model, "num_points", None) or self.model.data_info.get("num_points") or DEFAULT_NUM_POINTS)
 
     @property

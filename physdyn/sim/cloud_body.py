@@ -5,7 +5,7 @@ The same information makes a simulator body: the cloud's convex hull as the coll
 conventions' collision shape is the mesh's hull, and a dense surface cloud's hull is close to it), and the
 body's own inertia where it is known (a store records it, a mesh gives it), else that of the hull as a
 uniform solid about the known centre of mass (mass itself cancels out of rigid-body motion under Coulomb
-friction). Two uses (measured in docs/ablations.md, "The simulator on the cloud"):
+friction). Two uses (measured in docs/research/simulated-start.md):
 
 - ``CloudSimulator.max_tilt``: a short roll-out (1 s at 1/240 s) whose largest tilt tells the topple
   classifier what a step-0 summary cannot — how the tilt evolves against the edge;
@@ -50,7 +50,7 @@ def cloud_body_spec(points: np.ndarray, inertia_per_mass: np.ndarray | None = No
     the cloud's convex hull, solid at uniform density, its inertia taken about the origin; or, where the
     body's own inertia is known (a mesh or a store carries it), ``inertia_per_mass`` (3, 3) in the cloud's
     axes (I / m; one that is not finite and positive definite is ignored). The hull misjudges hollow and concave solids: per unit mass 0.75-0.8x a mug's or a
-    trash can's, up to 1.2x an irregular blob's (docs/ablations.md)."""
+    trash can's, up to 1.2x an irregular blob's (docs/research/simulated-start.md)."""
     try:
         hull = trimesh.convex.convex_hull(np.asarray(points, np.float64))
     except Exception as exc:  # qhull on a flat or degenerate cloud

@@ -63,7 +63,7 @@ def test_relative_errors_follow_the_documented_definitions():
     assert seq["position"][0] == pytest.approx(2 / (r2 + 1))
     assert seq["linear_velocity"][0] == pytest.approx(6 / 1)
     assert seq["angle"][0] == pytest.approx(0.01 / 0.51)
-    # step form (the loss of method-notes section 3): mean_t ||x^ - x|| / (||x|| + ||x^||)
+    # step form (the paper's relative loss): mean_t ||x^ - x|| / (||x|| + ||x^||)
     assert step["position"][0] == pytest.approx((1 / (r2 + 1) + 1 / 3) / 2)
     assert step["linear_velocity"][0] == pytest.approx(1.0)  # 5/5 and 1/1
     assert step["angle"][0] == pytest.approx((0 / 1.0 + 0.01 / 0.03) / 2)

@@ -1,8 +1,8 @@
-"""Checkpoints are read without running code, and the ones physdyn wrote before that keep loading.
+"""Checkpoints are read without running code, and full Lightning checkpoints keep loading.
 
 ``tests/fixtures/old_format.ckpt`` is the ``last.ckpt`` of a tiny `physdyn fit` run (the quickstart preset
-shrunk as in ``conftest.SHRINK``, three steps on the tiny store), written by physdyn at 6e34e92, before files
-were read with ``weights_only=True``: weights, hyper-parameters, and Lightning's optimiser, scheduler, loop
+shrunk as in ``conftest.SHRINK``, three steps on the tiny store), as physdyn 0.1.0 wrote it on 2026-11-25 for a
+reader without ``weights_only=True``: weights, hyper-parameters, and Lightning's optimiser, scheduler, loop
 and callback states. The refusal of files that carry code, command by command: tests/test_bad_inputs.py.
 """
 

@@ -26,7 +26,7 @@ def test_paper_sized_model_has_the_papers_layers():
     lstm = PREDICTORS.build("lstm", {}, input_dim=6 + enc.out_dim)
     head = HEADS.build("topple", {}, in_dim=lstm.out_dim)
     n = sum(p.numel() for m in (enc, lstm, head) for p in m.parameters())
-    assert 22.5e6 < n < 23.3e6  # method-notes: 22.9 M
+    assert 22.5e6 < n < 23.3e6  # the paper's model: 22.9 M
     h = 1024
     for name, p in lstm.lstm.named_parameters():
         if name.startswith("bias"):

@@ -76,8 +76,8 @@ def test_a_pointnet_correction_reads_the_thinned_cloud_and_learns(fitted_pointne
     with torch.no_grad():
         torch_fix = net(torch.tensor(clouds), torch.tensor(standard, dtype=torch.float32)).double().numpy()
     np.testing.assert_allclose(fixes, torch_fix * correction.targets_std + correction.targets_mean, rtol=1e-5, atol=1e-7)
-    # float32 rounding, as the batched line below: a push alone takes other product kernels than three (on this
-    # machine's CPU 4e-6 of the turn apart at 342caa5, where CI's passed 1e-6)
+    # float32 rounding, as the batched line below: a push alone takes other product kernels than three (on some
+    # CPUs 4e-6 of the turn apart, on others within 1e-6)
     np.testing.assert_allclose(correction.correction(inputs[1:2], clouds[1:2]), fixes[1:2], rtol=1e-5, atol=1e-7)
     many = np.repeat(np.arange(3), 15)  # 45 pushes: two passes of 32
     np.testing.assert_allclose(correction.correction(inputs[many], clouds[many]), fixes[many], rtol=1e-5, atol=1e-7)

@@ -1,4 +1,5 @@
-"""The training-recipe levers of docs/ablations.md: each one's config path, its maths, and a tiny run that learns."""
+"""The training-recipe levers of docs/research/training-recipe.md: each one's config path, its maths, and a tiny
+run that learns."""
 
 from __future__ import annotations
 
@@ -324,7 +325,8 @@ def test_without_gradient_the_contact_prior_stops_resting_pairs_and_substeps_the
 
 def test_a_body_at_rest_on_a_far_contact_stays_at_rest():
     # One support point 0.16 m from the vertical through the centre of mass, spin inertia a quarter of its
-    # r^2: friction's stick regime used to overshoot and swap slide and spin, growing x4 per two sub-steps.
+    # r^2: friction's stick regime must not overshoot there and swap slide and spin (an overshoot grows x4 per
+    # two sub-steps).
     geometry = torch.tensor([[0.158, -0.034, -0.21] * 4 + [1.0, 0.0, 0.0, 0.0, 0.0063, 0.21]], dtype=torch.float64)
     v = torch.tensor([[[-1.7e-9, 6e-10, 0.0]]], dtype=torch.float64)
     w = torch.tensor([[[0.0, 0.0, 6.5e-9]]], dtype=torch.float64)
@@ -341,7 +343,7 @@ def test_a_body_at_rest_on_a_far_contact_stays_at_rest():
 
 def test_the_footprint_does_not_depend_on_the_order_of_the_cloud():
     # The same cloud listed in another order is the same object: the same footprint, weights and inertia
-    # (farthest-point sampling used to start from whichever touching point came first).
+    # (farthest-point sampling must not start from whichever touching point comes first).
     rng = np.random.default_rng(3)
     base = np.c_[rng.uniform(-0.06, 0.06, (200, 2)), np.zeros(200)]  # a flat 12 cm square base
     rest = np.c_[rng.uniform(-0.03, 0.03, (300, 2)), rng.uniform(0.01, 0.2, 300)]
@@ -493,7 +495,7 @@ def test_a_detached_topple_head_is_saved_with_the_model_and_rolls_out(quickstart
     result = fit(quickstart_config("model.head.params.detach_topple=true"))
     model = DynamicsModel.load_from_checkpoint(result.last_checkpoint)
     assert model.head.config.detach_topple is True
-    # its topple row learned although it starts at zero (a prior's head) and no longer shapes the network
+    # its topple row learned although it starts at zero (a prior's head), and its loss does not shape the network
     assert model.head.linear.weight[12].abs().sum() > 0
     report = evaluate(model, store, split="test")
     assert math.isfinite(report["headline"]["final_position_m_median"]) and 0 <= report["topple"]["accuracy"] <= 1

@@ -86,7 +86,7 @@ def test_a_checkpoint_keeps_it_and_is_read_without_running_code(fitted, tmp_path
     first = stores_first_frames([store], split=1)
     np.testing.assert_array_equal(back.probability(first["points"], first["v0"], first["w0"], first["spin"]),
                                   classifier.probability(first["points"], first["v0"], first["w0"], first["spin"]))
-    # a file of the fourteenth session's, from before the layer widths were written, reads as the default ones
+    # a classifier's dict without "point_widths" (files written without it) reads as the default widths
     old = classifier.to_dict()
     del old["point_widths"]
     assert topple_classifier_from_dict(old).point_widths == (64, 128)

@@ -179,7 +179,7 @@ def test_a_run_without_validation_says_its_best_ckpt_is_the_last(quickstart_conf
 
 @pytest.mark.slow  # seconds-scale; the default run stays near 3 minutes, CI runs it (-m slow)
 def test_cli_fit_output_is_free_of_lightning_noise(tiny_store, tmp_path):
-    # Lightning's cloud-logger tip and a torch deprecation warning it triggers used to print on every run.
+    # Lightning's cloud-logger tip and a torch deprecation warning it triggers would print on every run.
     from physdyn.models.trainer_setup import LIGHTNING_NOISE
 
     proc = run_cli("fit", "--config", str(QUICKSTART), *shrunk_overrides(tiny_store, tmp_path / "r", "progress_bar=true"))

@@ -178,8 +178,8 @@ def test_ctrl_c_leaves_a_resumable_store_and_says_so(tmp_path):
            "families.speakers.sims_per_shape=60"]
     # The child gets Ctrl-C's default disposition, as a shell gives it: a process that ignores SIGINT passes that
     # on to its children. In the whole slow pass something before this test leaves the test process ignoring it
-    # (Lightning's trainer sets SIG_IGN when a fit is interrupted, and does not put it back), and the child then
-    # ran to the end (2026-11-26; which earlier test does it is not yet found: each half of the pass alone does not).
+    # (Lightning's trainer sets SIG_IGN when a fit is interrupted, and does not put it back), and the child would
+    # run to the end (which test does it is not known: each half of the pass alone does not).
     proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.time() + 120

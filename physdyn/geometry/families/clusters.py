@@ -1,7 +1,7 @@
 """Irregular solids: a few random convex pieces fused into one, the way most of pybullet_data's random_urdfs
 objects are made (overlapping convex polyhedra). The other families are revolved or box-like and mostly
 convex; these give training shapes with many facets, no symmetry and a footprint that changes as they turn
-(docs/ablations.md, "A PointNet over the impact phase").
+(docs/research/learned-impact.md).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""PointNet without T-nets, as the paper's shape branch (method-notes section 2)."""
+"""PointNet without T-nets, as the paper's shape branch."""
 
 from __future__ import annotations
 

@@ -32,9 +32,8 @@ class ToppleHead(PredictionHead):
     ``detach_topple``: the topple logit's loss trains its own row of the layer only, not the predictor
     under it. The paper's head (False) lets the topple cross-entropy shape the shared features; its
     gradient dwarfs that of the small velocity residuals on top of a prior, and a residual model then
-    learns nothing of what its prior misses (docs/ablations.md, "The topple loss kept the network from
-    learning"). The numbers the head computes are the same either way; only what the topple loss trains
-    differs."""
+    learns nothing of what its prior misses (docs/research/network-residual.md). The numbers the head computes
+    are the same either way; only what the topple loss trains differs."""
 
     predicts_topple = True
 
