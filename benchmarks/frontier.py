@@ -78,12 +78,12 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 import trimesh  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # physdyn of this checkout
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from frontier_report import TABLE_NOTES, add_cost_ratios, median, plot, regime_header, table  # noqa: E402
-from frontier_sets import (MeshSet, Requests, collect_set, one_mesh_set, requests_from_store,  # noqa: E402
-                           truth_store)
+if __package__:  # imported as benchmarks.frontier by a study (python -m benchmarks.studies.NAME)
+    from .frontier_report import TABLE_NOTES, add_cost_ratios, median, plot, regime_header, table
+    from .frontier_sets import MeshSet, Requests, collect_set, one_mesh_set, requests_from_store, truth_store
+else:  # python benchmarks/frontier.py: Python puts this folder on the path
+    from frontier_report import TABLE_NOTES, add_cost_ratios, median, plot, regime_header, table
+    from frontier_sets import MeshSet, Requests, collect_set, one_mesh_set, requests_from_store, truth_store
 from physdyn.config import PhysicsConfig, config_from_dict  # noqa: E402
 from physdyn.eval.metrics import rotation_angle_deg  # noqa: E402
 from physdyn.geometry.mesh_io import load_mesh  # noqa: E402

@@ -7,7 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
-from frontier_sets import Requests
+if __package__:  # imported as benchmarks.frontier_report by a study (python -m benchmarks.studies.NAME)
+    from .frontier_sets import Requests
+else:  # imported by benchmarks/frontier.py, whose folder Python puts on the path
+    from frontier_sets import Requests
 
 COST_REFERENCES_HZ = (240, 120)  # the steps every cost is compared with
 

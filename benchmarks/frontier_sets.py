@@ -17,10 +17,10 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # physdyn of this checkout
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from external_meshes import fit_training_size, mesh_folder_store, pybullet_sources  # noqa: E402
+if __package__:  # imported as benchmarks.frontier_sets by a study (python -m benchmarks.studies.NAME)
+    from .external_meshes import fit_training_size, mesh_folder_store, pybullet_sources
+else:  # imported by a script of this folder, which Python puts on the path
+    from external_meshes import fit_training_size, mesh_folder_store, pybullet_sources
 from physdyn.errors import PhysdynError  # noqa: E402
 from physdyn.eval.baselines import coulomb_slide  # noqa: E402
 from physdyn.geometry.mesh_io import MESH_EXTENSIONS  # noqa: E402

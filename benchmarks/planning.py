@@ -13,7 +13,7 @@ fast model screening candidates for PyBullet) against the same planner with PyBu
 2. Each planner gets the mesh placed in the push's resting orientation, the goal and the budget, one torch
    thread (one core). The learned model's one-time set-up in the process is done before the first goal.
 3. A goal is met when PyBullet at 1/960 s on the mesh, from the returned lin_vel / ang_vel and the placed
-   mesh, ends within 2 cm and 15 deg of it, upright (``physdyn.predict.planner.verify_push``).
+   mesh, ends within 2 cm and 15 deg of it, upright (``physdyn.plan.verify_push``, run by ``plan_push`` with ``verify``).
 Reports, per budget and planner: goals met, the median miss (cm, deg) of that check, the goals the planner's
 own model said it met (the search's failures apart from the model's errors), candidates per second.
 """
@@ -24,33 +24,33 @@ import argparse
 import json
 import math
 import os
-import sys
 import time
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from external_meshes import external_store  # noqa: E402
+from external_meshes import external_store  # python benchmarks/planning.py: Python puts this folder on the path
 
-from physdyn.predict.planner import Goal, turn_about_vertical, verify_push  # noqa: E402
-from physdyn.predict.predictor import load_predictor  # noqa: E402
+from physdyn.plan import PlanOptions, plan_push
+from physdyn.plan.goal import turn_about_vertical
+from physdyn.predict.predictor import load_predictor
 
-# name -> Predictor.plan settings. The same planner throughout (cross-entropy rounds, the budget's clock);
+# name -> the plan's options (physdyn.plan.PlanOptions). The same planner throughout (cross-entropy rounds, the budget's clock);
 # what differs is what rolls out the candidates, and whether the last fifth of the budget re-checks the
 # best 8 at the conventions' step.
 PLANNERS = {
-    "physdyn (default: contact-prior screen, PyBullet 1/240 s ranks, check)": {},
-    "physdyn (networks screen, PyBullet 1/240 s ranks, check)": {"screen": "model"},
-    "physdyn (bundled model alone)": {"search": "model", "check": False},
-    "pybullet 1/240 s, check": {"search": "pybullet", "pybullet_step": 1 / 240},
-    "pybullet 1/120 s, check": {"search": "pybullet", "pybullet_step": 1 / 120},
-    "pybullet 1/60 s, check": {"search": "pybullet", "pybullet_step": 1 / 60},
-    "pybullet 1/240 s": {"search": "pybullet", "pybullet_step": 1 / 240, "check": False},
-    "pybullet 1/120 s": {"search": "pybullet", "pybullet_step": 1 / 120, "check": False},
-    "pybullet 1/60 s": {"search": "pybullet", "pybullet_step": 1 / 60, "check": False},
+    "physdyn (default: contact-prior screen, PyBullet 1/240 s ranks, check)": PlanOptions(),
+    "physdyn (networks screen, PyBullet 1/240 s ranks, check)": PlanOptions(screen="model"),
+    "physdyn (bundled model alone)": PlanOptions(search="model", check=False),
+    "pybullet 1/240 s, check": PlanOptions(search="pybullet", pybullet_step=1 / 240),
+    "pybullet 1/120 s, check": PlanOptions(search="pybullet", pybullet_step=1 / 120),
+    "pybullet 1/60 s, check": PlanOptions(search="pybullet", pybullet_step=1 / 60),
+    "pybullet 1/240 s": PlanOptions(search="pybullet", pybullet_step=1 / 240, check=False),
+    "pybullet 1/120 s": PlanOptions(search="pybullet", pybullet_step=1 / 120, check=False),
+    "pybullet 1/60 s": PlanOptions(search="pybullet", pybullet_step=1 / 60, check=False),
 }
 DEFAULT_PLANNERS = [name for name in PLANNERS if "bundled" not in name]  # the bundled model alone: --planners
 
@@ -93,18 +93,17 @@ def main() -> None:
     predictor = load_predictor(args.checkpoint)
     for path in args.screen_checkpoint:  # the same search, another screen (handed the body the planner prepared)
         name = f"physdyn ({Path(path).stem} screen, PyBullet 1/240 s ranks, check)"
-        PLANNERS[name] = {"screen": load_predictor(path)}
+        PLANNERS[name] = PlanOptions(screen=load_predictor(path))
         args.planners.append(name)
     rows = []
     started = time.perf_counter()
     for g in goals:
-        goal = Goal(xy=g["xy"], yaw=math.radians(g["yaw_deg"]), upright=True)
         for budget in args.budgets:
             for name in args.planners:
-                plan = predictor.plan(g["mesh"], g["xy"], goal_yaw=g["yaw_deg"], upright=True, budget_s=budget,
-                                      orientation_xyzw=g["orientation_xyzw"], seed=g["sim"], **PLANNERS[name])
-                body = predictor._bodies([g["mesh"]], [1.0])[0]
-                check = verify_push(body, plan["orientation_xyzw"], plan["lin_vel"], plan["ang_vel"], goal, predictor.rate_hz)
+                # verified after the search's clock stops: PyBullet at the conventions' step on the mesh
+                options = replace(PLANNERS[name], seed=g["sim"], verify=True)
+                plan = plan_push(predictor, g["mesh"], g["xy"], g["yaw_deg"], True, budget, g["orientation_xyzw"], options)
+                check = plan["verified"]
                 rows.append({"sim": g["sim"], "mesh": Path(g["mesh"]).stem, "budget_s": budget, "planner": name,
                              "met": check["met"], "miss_cm": 100 * check["miss_m"], "miss_deg": check["miss_yaw_deg"],
                              "toppled": check["toppled"], "predicted_miss_cm": 100 * plan["predicted"]["miss_m"],

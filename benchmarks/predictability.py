@@ -26,7 +26,7 @@ from physdyn.eval.metrics import rotation_angle_deg
 from physdyn.predict.body import prepare_body
 from physdyn.predict.simulator import simulate_from_state
 
-BANDS = ((0, 5), (5, 10), (10, 20), (20, np.inf))  # rad/s, as benchmarks/yaw_by_spin.py
+BANDS = ((0, 5), (5, 10), (10, 20), (20, np.inf))  # rad/s
 
 
 def perturbed(x: np.ndarray, eps: float, rng: np.random.Generator) -> np.ndarray:

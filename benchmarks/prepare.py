@@ -27,7 +27,6 @@ for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUME
     os.environ[_var] = "1"  # before numpy loads its BLAS: one thread, as the target is stated
 
 import argparse  # noqa: E402
-import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 import warnings  # noqa: E402
@@ -38,7 +37,6 @@ import pybullet_data  # noqa: E402
 import torch  # noqa: E402
 import trimesh  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 from external_meshes import collect_meshes  # noqa: E402
 
 from physdyn.config import MassConfig  # noqa: E402

@@ -1,5 +1,5 @@
 """How far the ideal free-body impulse formula is from PyBullet's response to the same push, and what the
-PyBullet step costs: the measurement behind ``physdyn.predict.push`` (docs/plan.md, "The push").
+PyBullet step costs: the measurement behind ``physdyn.plan.push`` (docs/plan.md, "The push").
 
     python benchmarks/push_mapping.py                 # 20 external meshes x 10 generator pushes
 
@@ -13,20 +13,18 @@ w = I^-1 (r x J) (``free_body_velocities``).
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 from external_meshes import collect_meshes  # noqa: E402
 
 from physdyn.config import DataConfig, PhysicsConfig  # noqa: E402
 from physdyn.geometry.poses import stable_orientations  # noqa: E402
 from physdyn.predict.body import prepare_body  # noqa: E402
-from physdyn.predict.push import PushResponse, free_body_velocities  # noqa: E402
+from physdyn.plan.push import PushResponse, free_body_velocities  # noqa: E402
 from physdyn.sim.impulse import sample_initial_condition  # noqa: E402
 from physdyn.sim.world import PhysicsWorld  # noqa: E402
 

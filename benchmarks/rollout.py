@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import sys
 import tempfile
 import time
 import warnings
@@ -30,7 +29,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 from external_meshes import NAMED, collect_meshes  # noqa: E402
 
 from physdyn.predict.body import prepare_body  # noqa: E402

@@ -15,15 +15,17 @@ About two minutes on 2 CPU cores (the roll-outs of the validation and test split
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 
 import numpy as np
 
 from physdyn.data.store import load_store
 from physdyn.eval import metrics as M
-from physdyn.eval.baselines import load_checkpoint
 from physdyn.eval.evaluate import evaluate, select_sequences
 from physdyn.predict.predictor import BUNDLED_CHECKPOINT
+from physdyn.pipeline.presets import load_pipeline
+from physdyn.pipeline.topple import HeadTopple
 from physdyn.models.topple_classifier import (FEATURE_NAMES, best_threshold, clipped_scaling, fit_topple_classifier,
                                               standardise, store_features)
 
@@ -40,8 +42,10 @@ def main() -> None:
     args = parser.parse_args()
     started = time.time()
     store = load_store(args.data)
-    model = load_checkpoint(args.checkpoint)
-    shipped, model.topple_classifier = model.topple_classifier, None  # the head's own probabilities first
+    pipeline = load_pipeline(args.checkpoint)
+    shipped = getattr(pipeline.topple, "classifier", None)
+    model = dataclasses.replace(pipeline, topple=HeadTopple())  # the head's own probabilities first
+    friction = pipeline.network.prior_friction
     val, test = select_sequences(store, "val"), select_sequences(store, "test")
     y = {"val": store.toppled[val].astype(bool), "test": store.toppled[test].astype(bool)}
     head = {}
@@ -57,17 +61,17 @@ def main() -> None:
     ratio = {k: v[:, FEATURE_NAMES.index("tilt_ratio")] for k, v in x.items()}
     t = best_threshold(ratio["val"], y["val"])
     rows.append((f"tilt energy ratio >= {t:.2f} (no learning)", ratio["test"] >= t))
-    clf, _ = fit_topple_classifier(store, None, model.prior_friction)
+    clf, _ = fit_topple_classifier(store, None, friction)
     rows.append(("fit-topple on the quickstart store", clf.probability(x["test"]) >= 0.5))
     # with the 1 s roll-out of the cloud's hull (the body's inertia): about 40 s more
     x_physics = store_features(store, test, None, 0.25, 2, physics=True)
     sim_says = x_physics[:, -1] > 0.5
     rows.append(("the roll-out alone (tilt >= 45 deg within 1 s)", sim_says))
-    clf_physics, _ = fit_topple_classifier(store, None, model.prior_friction, physics=True)
+    clf_physics, _ = fit_topple_classifier(store, None, friction, physics=True)
     rows.append(("fit-topple --physics on the quickstart store", clf_physics.probability(x_physics) >= 0.5))
     try:
         large = load_store(args.large)
-        clf_large, _ = fit_topple_classifier(large, None, model.prior_friction)
+        clf_large, _ = fit_topple_classifier(large, None, friction)
         rows.append(("fit-topple on the large store", clf_large.probability(x["test"]) >= 0.5))
         if args.families:
             rows += _families(large, x, y)
@@ -75,13 +79,12 @@ def main() -> None:
         print(f"(no large-store row: {exc})")
     try:
         shapes = load_store(args.shapes)
-        clf_shapes, _ = fit_topple_classifier(shapes, None, model.prior_friction)
+        clf_shapes, _ = fit_topple_classifier(shapes, None, friction)
         rows.append(("fit-topple on the five-times-the-shapes store", clf_shapes.probability(x["test"]) >= 0.5))
     except Exception as exc:  # noqa: BLE001 - the shapes store is optional
         print(f"(no shapes-store row: {exc})")
     if shipped is not None:
-        model.topple_classifier = shipped
-        result = evaluate(model, store, "test")
+        result = evaluate(pipeline, store, "test")
         print(f"shipped classifier through the roll-out: test accuracy {result['topple']['accuracy']:.3f}")
         features = x_physics if shipped.physics else x["test"]
         rows.append(("shipped classifier (features on this cloud)", shipped.probability(features) >= 0.5))

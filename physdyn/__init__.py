@@ -9,4 +9,8 @@ def __getattr__(name: str):
         from physdyn.predict.predictor import load_predictor
 
         return load_predictor
+    if name == "plan_push":
+        from physdyn.plan import plan_push
+
+        return plan_push
     raise AttributeError(f"module 'physdyn' has no attribute {name!r}")

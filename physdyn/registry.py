@@ -131,10 +131,17 @@ SHAPE_FAMILIES: Registry = Registry(
 ENCODERS: Registry = Registry("encoder", "physdyn.encoders", ("physdyn.models.encoders",))
 PREDICTORS: Registry = Registry("predictor", "physdyn.predictors", ("physdyn.models.predictors",))
 HEADS: Registry = Registry("head", "physdyn.heads", ("physdyn.models.heads",))
+# A predictor's stages (physdyn.pipeline.stages): what a predictor preset names (configs/predictor/)
+MOTION_STAGES: Registry = Registry("motion stage", "physdyn.motion_stages", ("physdyn.pipeline.motion",))
+TOPPLE_STAGES: Registry = Registry("topple stage", "physdyn.topple_stages", ("physdyn.pipeline.topple",))
+CORRECTION_STAGES: Registry = Registry("correction stage", "physdyn.correction_stages", ("physdyn.pipeline.correction",))
 
 ALL_REGISTRIES: dict[str, Registry] = {
     "shape_families": SHAPE_FAMILIES,
     "encoders": ENCODERS,
     "predictors": PREDICTORS,
     "heads": HEADS,
+    "motion_stages": MOTION_STAGES,
+    "topple_stages": TOPPLE_STAGES,
+    "correction_stages": CORRECTION_STAGES,
 }

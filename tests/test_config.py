@@ -97,3 +97,32 @@ def test_every_reproduce_scale_loads_and_its_training_configs_validate(scale):
         assert cfg.data == cpu.data and cfg.mlp_overrides == cpu.mlp_overrides
         trained = load_experiment_config(path.parent / cfg.train_preset, list(cfg.train_overrides))
         assert trained.model.head.params == {"detach_topple": True} and trained.trainer["max_steps"] == 3000
+
+
+def test_every_public_name_of_the_config_modules_is_importable_from_physdyn_config():
+    """The schemas live in one module per concern (physdyn/config/); code and plugins import them from
+    ``physdyn.config``, so a name added to a module must be re-exported there too."""
+    import ast
+    import importlib
+    from typing import TypeVar
+
+    import physdyn.config as config
+
+    missing = []
+    for path in sorted(Path(config.__file__).parent.glob("*.py")):
+        if path.name == "__init__.py":
+            continue
+        module = importlib.import_module(f"physdyn.config.{path.stem}")
+        for node in ast.parse(path.read_text()).body:
+            if isinstance(node, (ast.ClassDef, ast.FunctionDef)):
+                names = [node.name]
+            else:
+                targets = node.targets if isinstance(node, ast.Assign) else [getattr(node, "target", None)]
+                names = [t.id for t in targets if isinstance(t, ast.Name)]
+            for name in names:
+                value = getattr(module, name)
+                if name.startswith("_") or isinstance(value, TypeVar):
+                    continue
+                if getattr(config, name, None) is not value or name not in config.__all__:
+                    missing.append(f"{module.__name__}.{name}")
+    assert not missing, f"not re-exported by physdyn/config/__init__.py: {', '.join(missing)}"

@@ -7,20 +7,17 @@ mass — and lets PyBullet roll it out from the store's step-0 state, at a coars
 #11 metrics (final position / rotation of non-toppling pushes, topple accuracy over all) against the store,
 and the wall time per push against the store's own simulation cost at 1/960 s.
 
-    python benchmarks/studies/cloud_sim.py STORE [--split 2|all] [--points 256] [--step 240] [--limit N]
+    python -m benchmarks.studies.cloud_sim STORE [--split 2|all] [--points 256] [--step 240] [--limit N]
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from physdyn.config import PhysicsConfig  # noqa: E402
 from physdyn.data.store import load_store  # noqa: E402

@@ -1,47 +1,30 @@
-"""The contact prior's footprint as the 4 touching points spanning the largest area (greedily, as Bullet's
-contact manifold keeps its points) instead of farthest-point sampling, as the option
-``model.contact_footprint=area`` does (docs/research/contact-prior.md). Patches ``contact_geometry`` for this run only, so that the bundled model's
-weights and the prior alone use it (and, for ``facet`` and ``flat``, other candidate points).
+"""The contact prior's footprint from the mesh's own convex-hull face the body rests on (what the simulator
+collides) against the one read from the cloud (docs/research/contact-prior.md); the footprint's 4 points are
+chosen to span the largest area, as Bullet's contact manifold keeps its points and as the option
+``model.contact_footprint=area`` does.
 
-    python benchmarks/studies/footprint_area.py val [band|facet|flat] # quickstart validation: the prior alone, the bundled model
-    python benchmarks/studies/footprint_area.py extval [band|facet|flat]  # the bundled model on the external validation set
-    python benchmarks/studies/footprint_area.py hull STORE           # the prior alone on a store of meshes, footprint
-                                                                     # from the cloud or from the mesh's convex-hull face
-    python benchmarks/studies/footprint_area.py spin STORE           # every 6th mesh spun in place: PyBullet and the prior
-    python benchmarks/studies/footprint_area.py run SCRIPT [ARGS]    # another study under the patch (band), e.g.
-                                                                     # spin_primitives.py or spin_decel.py
-    python benchmarks/studies/footprint_area.py {val,extval} band CHECKPOINT  # another model under the patch
+    python -m benchmarks.studies.footprint_area hull STORE    # the prior alone on a store of meshes, footprint
+                                                              # from the cloud or from the mesh's convex-hull face
+    python -m benchmarks.studies.footprint_area spin STORE    # every 6th mesh spun in place: PyBullet and the prior
 
-``band``: among the cloud points within 5 mm of the lowest (the shipped candidates); ``facet``: among those
-within 1 mm of the cloud's convex-hull facet under the centre of mass (``footprint_facet.py``); ``flat``: the
-band chosen for area where 3 or more cloud points lie within 1 mm of the lowest (a flat face), the shipped
-footprint elsewhere. ``hull``
-rolls the prior alone out (no network) from each non-toppling push's step-0 state and prints the median
-final rotation error with the shipped footprint, with the 4 largest-area vertices of the mesh's own
-convex-hull face the body rests on (what the simulator collides), and with that face only where it has 3
-or more vertices.
+``hull`` rolls the prior alone out (no network) from each non-toppling push's step-0 state and prints the
+median final rotation error with the shipped footprint, with the 4 largest-area vertices of the mesh's own
+convex-hull face the body rests on, and with that face only where it has 3 or more vertices.
 """
 import sys
-from pathlib import Path
 
 import numpy as np
 import torch
 import trimesh
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(HERE.parent))
-import physdyn.models.dynamics_network as dm  # noqa: E402
-import physdyn.models.priors as pri  # noqa: E402
-from footprint_facet import touching_mask  # noqa: E402
-from spin_primitives import prior_rollout  # noqa: E402
+import physdyn.models.priors as pri
+from benchmarks.studies.common import prior_rollout
 
 SHIPPED = pri.contact_geometry
 
 
 def area_geometry(points, touching=None):
-    """``contact_geometry`` with the footprint chosen for area (``model.contact_footprint=area``, built from
-    this study)."""
+    """``contact_geometry`` with the footprint chosen for area (``model.contact_footprint=area``)."""
     return SHIPPED(points, touching, footprint="area")
 
 
@@ -56,20 +39,6 @@ def hull_face_geometry(store, shape: int, orientation_xyzw: np.ndarray, hulls: d
     V = hulls[shape] @ quat_to_matrix(orientation_xyzw).T
     touching = V[:, 2] <= V[:, 2].min() + 5e-4
     return area_geometry(torch.tensor(V[None], dtype=torch.float32), torch.tensor(touching[None])), int(touching.sum())
-
-
-def patch(candidates: str) -> None:
-    def geometry(points, touching=None, footprint=None):  # the patch decides the footprint
-        if touching is None and candidates == "flat":
-            z = points[..., 2]
-            flat = (z <= z.min(dim=1, keepdim=True).values + 0.001).sum(dim=1) >= 3
-            return torch.where(flat[:, None], area_geometry(points), SHIPPED(points))
-        if touching is None and candidates == "facet":
-            masks = np.stack([touching_mask(p, 0.001) for p in points.detach().cpu().numpy().astype(np.float64)])
-            touching = torch.from_numpy(masks).to(points.device)
-        return area_geometry(points, touching)
-    pri.contact_geometry = geometry
-    dm.contact_geometry = geometry
 
 
 def hull_rollouts(path: str) -> None:
@@ -142,36 +111,9 @@ def spin_in_place(path: str, w0: float = 10.0) -> None:
 
 
 def main() -> None:
-    which = sys.argv[1]
-    if which in ("hull", "spin"):
-        (hull_rollouts if which == "hull" else spin_in_place)(sys.argv[2])
-        return
-    if which == "run":
-        import runpy
-        patch("band")
-        sys.argv = sys.argv[2:]
-        runpy.run_path(str(HERE / sys.argv[0]), run_name="__main__")
-        return
-    patch(sys.argv[2] if len(sys.argv) > 2 else "band")
-    if which == "val":
-        from priors import prior_only_model
-
-        from physdyn.data.store import load_store
-        from physdyn.eval.evaluate import evaluate
-        from physdyn.predict.predictor import BUNDLED_CHECKPOINT
-        store = load_store("data/quickstart.zarr")
-        models = [("the prior alone", prior_only_model("contact", store)), ("the bundled model", str(BUNDLED_CHECKPOINT))]
-        if len(sys.argv) > 3:
-            models = [(sys.argv[3], sys.argv[3])]
-        for name, model in models:
-            h = evaluate(model, store, split="val")["headline"]
-            print(f"{name}: {100 * h['final_position_m_median']:.2f} cm {h['final_rotation_deg_median']:.1f} deg "
-                  f"{1000 * h['position']:.2f} mm per step")
-    else:
-        import external_meshes
-        checkpoint = ["--checkpoint", sys.argv[3]] if len(sys.argv) > 3 else []
-        sys.argv = ["external_meshes.py", "--work", "runs/external_val", "--random", "60", "--random-from", "30", "--no-named"] + checkpoint
-        external_meshes.main()
+    if len(sys.argv) != 3 or sys.argv[1] not in ("hull", "spin"):
+        sys.exit(__doc__)
+    (hull_rollouts if sys.argv[1] == "hull" else spin_in_place)(sys.argv[2])
 
 
 if __name__ == "__main__":

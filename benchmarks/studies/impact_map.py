@@ -6,7 +6,7 @@ topple classifier (physdyn/models/topple_classifier.py, 32 heading-free features
 travel frame and the prior's own state at step K takes off, trained on one store's training split, scored on its validation and test
 splits (shapes not trained on).
 
-    python benchmarks/studies/impact_map.py data/quickstart_hull_large.zarr [--steps 6]
+    python -m benchmarks.studies.impact_map data/quickstart_hull_large.zarr [--steps 6]
 
 Targets: the truth's state at step K minus the prior's (rolled out from step 0, the body's inertia), in the
 frame of the step-0 travel: velocity (along, across), spin w_z, displacement (along, across), turn about the
@@ -22,41 +22,17 @@ import warnings
 import numpy as np
 import torch
 
+from benchmarks.studies.common import in_travel_frame, travel_frame, travel_state
 from physdyn.data.store import load_store
-from physdyn.data.windows import relative_rotation, store_spin_inertia, world_oriented_points
+from physdyn.data.windows import store_spin_inertia, world_oriented_points
 from physdyn.eval.evaluate import select_sequences
-from physdyn.eval.rollout import rollout
+from physdyn.eval.rollout import RolloutOptions, rollout
 from physdyn.models.priors import contact_geometry
 from physdyn.models.topple_classifier import topple_features
 from physdyn.predict.predictor import contact_prior_predictor
 
 FOOTPRINT = False
 NAMES = ("v along", "v across", "w_z", "p along", "p across", "yaw")
-
-
-def yaw_of(q: np.ndarray) -> np.ndarray:
-    x, y, z, w = np.moveaxis(q, -1, 0)
-    return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-
-
-def travel_frame(v0: np.ndarray) -> np.ndarray:
-    """(B, 2) unit travel directions (x where the push has no horizontal speed)."""
-    d = v0[:, :2]
-    n = np.linalg.norm(d, axis=1, keepdims=True)
-    return np.where(n > 1e-9, d / np.maximum(n, 1e-12), np.array([1.0, 0.0]))
-
-
-def in_travel_frame(a: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """(B, 3) vectors in the frame of the (B, 2) travel directions ``u``: along, across, up."""
-    return np.stack([(a[:, :2] * u).sum(1), u[:, 0] * a[:, 1] - u[:, 1] * a[:, 0], a[:, 2]], axis=1)
-
-
-def travel_state(v, w, p, q, p0, q0, u) -> np.ndarray:
-    """(B, 6): velocity along and across the travel ``u``, spin w_z, displacement from ``p0`` along and
-    across, turn about the vertical since ``q0``."""
-    vt, dp = in_travel_frame(v, u), in_travel_frame(p - p0, u)
-    turn = yaw_of(relative_rotation(q0, q[:, None])[:, 0])
-    return np.stack([vt[:, 0], vt[:, 1], w[:, 2], dp[:, 0], dp[:, 1], turn], axis=1)
 
 
 def states(store, sims: np.ndarray, K: int, model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -67,7 +43,7 @@ def states(store, sims: np.ndarray, K: int, model) -> tuple[np.ndarray, np.ndarr
     qK, pK = store.orientation_xyzw[first + K], store.com_position[first + K]
     vK, wK = store.linear_velocity[first + K], store.angular_velocity[first + K]
     points = store.points[store.shape_id[sims]]
-    out = rollout(model, points, q0, p0, v0, w0, K, spin_inertia=store_spin_inertia(store, sims, q0))
+    out = rollout(model, points, q0, p0, v0, w0, K, RolloutOptions(spin_inertia=store_spin_inertia(store, sims, q0)))
     u = travel_frame(v0)
     across = np.stack([-u[:, 1], u[:, 0]], axis=1)
     true = travel_state(vK, wK, pK, qK, p0, q0, u)

@@ -5,33 +5,33 @@ the step-0 velocities and the contact prior's own state at step K, trained on gr
 and scored on shapes it never saw: the store's validation and test splits and an external set of meshes.
 
     # on this machine: the external set (random_urdfs 100-159), then the inputs (the prior's roll-out, CPU)
-    python -c "import sys; sys.path.insert(0, 'benchmarks'); from pathlib import Path; \
-        from external_meshes import collect_meshes, mesh_folder_store; w = Path('runs/external_val_100'); \
+    python -c "from pathlib import Path; \
+        from benchmarks.external_meshes import collect_meshes, mesh_folder_store; w = Path('runs/external_val_100'); \
         collect_meshes(w / 'meshes', 60, 100, False); mesh_folder_store(w / 'meshes', w / 'urdf_100_159_hull256.zarr', \
         10, overrides=('points_method=hull_surface', 'num_points=256'))"
-    python benchmarks/studies/impact_pointnet.py export data/quickstart_hull_many.zarr data/clusters_hull.zarr \
+    python -m benchmarks.studies.impact_pointnet export data/quickstart_hull_many.zarr data/clusters_hull.zarr \
         --external runs/external_val_100/urdf_100_159_hull256.zarr --out runs/impact/many.npz
     # anywhere (a GPU where there is one): 300, 1,000 and all training shapes of the first store, both stores,
     # and the control without the cloud; --k 0 for the state at rest
-    python benchmarks/studies/impact_pointnet.py train runs/impact/many.npz --k 6 \
+    python -m benchmarks.studies.impact_pointnet train runs/impact/many.npz --k 6 \
         --runs 0:300 0:1000 0:all 1:all 0,1:all 0,1:all:scalars --device cuda --steps 10000 --batch 1024
 
 Real irregular meshes (random_urdfs 160-999) in training, the frontier's wheel meshes scored apart
 (measured only), and half of each batch mirrored across its travel (docs/research/learned-impact.md):
 
-    python -c "import sys; sys.path.insert(0, 'benchmarks'); from pathlib import Path; \
-        from external_meshes import collect_meshes, mesh_folder_store; o = ('points_method=hull_surface', 'num_points=256'); \
+    python -c "from pathlib import Path; \
+        from benchmarks.external_meshes import collect_meshes, mesh_folder_store; o = ('points_method=hull_surface', 'num_points=256'); \
         collect_meshes(Path('runs/urdf_train/meshes'), 840, 160, False); \
         mesh_folder_store(Path('runs/urdf_train/meshes'), Path('runs/urdf_train/urdf_160_999_hull256.zarr'), 10, overrides=o); \
         mesh_folder_store(Path('runs/frontier/wheel/meshes_60'), Path('runs/external_wheel/wheel_60_hull256.zarr'), 10, overrides=o)"
-    python benchmarks/studies/impact_pointnet.py export data/quickstart_hull_many.zarr data/clusters_hull.zarr \
+    python -m benchmarks.studies.impact_pointnet export data/quickstart_hull_many.zarr data/clusters_hull.zarr \
         runs/urdf_train/urdf_160_999_hull256.zarr --external runs/external_val_100/urdf_100_159_hull256.zarr \
         runs/external_wheel/wheel_60_hull256.zarr --steps 0 --out runs/impact/urdf.npz
-    python benchmarks/studies/impact_pointnet.py train runs/impact/urdf.npz --k 0 --runs 0,1,2:all --mirror \
+    python -m benchmarks.studies.impact_pointnet train runs/impact/urdf.npz --k 0 --runs 0,1,2:all --mirror \
         --device cuda --steps 10000 --batch 1024
-    python benchmarks/studies/impact_pointnet.py mirror-check data/clusters_hull.zarr   # the prior is equivariant
+    python -m benchmarks.studies.impact_pointnet mirror-check data/clusters_hull.zarr   # the prior is equivariant
 
-Targets as impact_map.py: the truth's state at step K minus the prior's, in the frame of the step-0 travel
+Targets as impact_map's: the truth's state at step K minus the prior's, in the frame of the step-0 travel
 (velocity along and across, spin w_z, displacement along and across, turn about the vertical); medians of
 |error| after the network's correction as a fraction of the prior's. Non-toppling pushes only.
 """
@@ -47,6 +47,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from benchmarks.studies.common import parse_run
+
 NAMES = ("v along", "v across", "w_z", "p along", "p across", "yaw")
 # A push mirrored across its travel (y -> -y in the travel frame) is a push of the mirrored shape: the
 # velocities (along, across, up) change sign as (+, -, +), the spins, an axial vector, as (-, +, -), the
@@ -57,11 +59,11 @@ MIRROR_SCALARS = np.concatenate([[1.0, -1.0, 1.0], [-1.0, 1.0, -1.0], MIRROR_STA
 
 
 def export(stores: list[str], externals: list[str], steps: list[int], out: Path) -> None:
-    from impact_map import in_travel_frame, travel_frame, travel_state
+    from benchmarks.studies.common import in_travel_frame, travel_frame, travel_state
 
     from physdyn.data.store import load_store
     from physdyn.data.windows import store_spin_inertia
-    from physdyn.eval.rollout import rollout
+    from physdyn.eval.rollout import RolloutOptions, rollout
     from physdyn.geometry.rotations import quat_to_matrix
     from physdyn.predict.predictor import contact_prior_predictor
 
@@ -79,7 +81,7 @@ def export(stores: list[str], externals: list[str], steps: list[int], out: Path)
             v0, w0 = store.linear_velocity[first], store.angular_velocity[first]
             inertia = store_spin_inertia(store, chunk, q0)
             o = rollout(model, store.points[store.shape_id[chunk]], q0, p0, v0, w0, int(lengths[chunk].max()) - 1,
-                        spin_inertia=inertia)
+                        RolloutOptions(spin_inertia=inertia))
             u = travel_frame(v0)
             across = np.stack([-u[:, 1], u[:, 0]], axis=1)
 
@@ -118,11 +120,11 @@ def export(stores: list[str], externals: list[str], steps: list[int], out: Path)
 def mirror_check(store_path: str, count: int = 200) -> None:
     """The contact prior's roll-out of mirrored pushes (shape, pose and velocities mirrored in the world,
     y -> -y) against the mirrored roll-out, in the travel frame, at step 6 and at rest: what --mirror assumes."""
-    from impact_map import in_travel_frame, travel_frame, travel_state
+    from benchmarks.studies.common import in_travel_frame, travel_frame, travel_state
 
     from physdyn.data.store import load_store
     from physdyn.data.windows import store_spin_inertia
-    from physdyn.eval.rollout import rollout
+    from physdyn.eval.rollout import RolloutOptions, rollout
     from physdyn.predict.predictor import contact_prior_predictor
 
     store = load_store(store_path)
@@ -140,7 +142,7 @@ def mirror_check(store_path: str, count: int = 200) -> None:
                v0 @ flip, -(w0 @ flip))]
     states = []
     for points, q, p, v, w in pushes:
-        o = rollout(model, points, q, p, v, w, int(lengths.max()) - 1, spin_inertia=inertia)
+        o = rollout(model, points, q, p, v, w, int(lengths.max()) - 1, RolloutOptions(spin_inertia=inertia))
         u = travel_frame(v)
         states.append([travel_state(o.linear_velocity[rows, k], o.angular_velocity[rows, k], o.com_position[rows, k],
                                     o.orientation_xyzw[rows, k], p, q, u)
@@ -172,15 +174,6 @@ class ImpactNet(torch.nn.Module):
         # decimetres: inputs of order one for the first layer
         f = self.points(torch.cat([cloud * 10.0, z * 10.0], dim=-1)).amax(dim=1)
         return self.head(torch.cat([f, scalars], dim=-1))
-
-
-def parse_run(spec: str) -> tuple[list[int], int, bool]:
-    """"STORES:SHAPES[:scalars]", e.g. "0:300" (300 training shapes of the first store), "0,1:all",
-    "0,1:all:scalars" (no cloud: the control) -> (stores, shapes (0: all), use_cloud)."""
-    parts = spec.split(":")
-    stores = [int(x) for x in parts[0].split(",")]
-    n = 0 if parts[1] == "all" else int(parts[1])
-    return stores, n, not (len(parts) > 2 and parts[2] == "scalars")
 
 
 def wrap_yaw(residual: np.ndarray) -> np.ndarray:

@@ -11,8 +11,8 @@ k / 64), and (2) its state after k steps, from which `fast` and the contact prio
 (non-toppling medians; position as a fraction of Coulomb sliding's). Starting from the truth after k steps
 tells what knowing the first k / 960 s exactly is worth.
 
-    python benchmarks/studies/impulse_start.py                 # the pybullet set, ~30 s
-    python benchmarks/studies/impulse_start.py --steps 0 2 384
+    python -m benchmarks.studies.impulse_start                 # the pybullet set, ~30 s
+    python -m benchmarks.studies.impulse_start --steps 0 2 384
 
 Needs the frontier's truth store (runs/frontier/pybullet/meshes_60_truth_x5.zarr, made by
 benchmarks/frontier.py on first use). Only the pybullet set: the wheel set is for measuring, not for
@@ -22,15 +22,13 @@ choosing a lever. docs/research/impact-phase.md.
 from __future__ import annotations
 
 import argparse
-import sys
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-import frontier as fr  # noqa: E402
-from frontier_sets import collect_set, requests_from_store, truth_store  # noqa: E402
+from benchmarks import frontier as fr  # noqa: E402
+from benchmarks.frontier_sets import collect_set, requests_from_store, truth_store  # noqa: E402
 
 from physdyn.config import PhysicsConfig, config_from_dict  # noqa: E402
 from physdyn.geometry.mesh_io import load_mesh  # noqa: E402

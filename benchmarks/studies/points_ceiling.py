@@ -4,13 +4,12 @@ convex hull of the points a model would see (with the body's true mass propertie
 A model fed a cloud cannot know more about contact than the cloud's hull tells; this is what a perfect model
 of that input would score. Meshes: the external benchmark's (benchmarks/external_meshes.py, pybullet_data).
 
-    python benchmarks/studies/points_ceiling.py [--work runs/external] [--points 256 512 1024] [--limit 0]
+    python -m benchmarks.studies.points_ceiling [--work runs/external] [--points 256 512 1024] [--limit 0]
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 import warnings
 from dataclasses import replace
@@ -18,10 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from external_meshes import external_store  # noqa: E402
+from benchmarks.external_meshes import external_store  # noqa: E402
 from physdyn.config import PhysicsConfig  # noqa: E402
 from physdyn.eval.baselines import coulomb_slide  # noqa: E402
 from physdyn.eval.metrics import rotation_angle_deg  # noqa: E402

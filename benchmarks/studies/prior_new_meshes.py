@@ -2,29 +2,24 @@
 frontier's pybullet set (benchmarks/frontier.py's store), where its rotation error comes from, and how its
 spin deceleration compares with PyBullet's. docs/research/contact-prior.md.
 
-    python benchmarks/studies/prior_new_meshes.py bins       # final errors by the push's spin and speed
-    python benchmarks/studies/prior_new_meshes.py onestep    # fed the true state: spin change over one step, prior / truth
-    python benchmarks/studies/prior_new_meshes.py sweep      # the footprint's depth and point count
+    python -m benchmarks.studies.prior_new_meshes bins       # final errors by the push's spin and speed
+    python -m benchmarks.studies.prior_new_meshes onestep    # fed the true state: spin change over one step, prior / truth
 
-The predictor is `contact_prior_predictor()` (the prior alone, no network); `sweep` patches
-physdyn.models.priors' SUPPORT_DEPTH and SUPPORT_POINTS for the run. Needs the frontier's truth store
+The predictor is `contact_prior_predictor()` (the prior alone, no network). Needs the frontier's truth store
 (runs/frontier/pybullet/meshes_60_truth_x5.zarr, made by benchmarks/frontier.py on first use).
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 import warnings
 from pathlib import Path
 
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-import frontier as fr  # noqa: E402
+from benchmarks import frontier as fr  # noqa: E402
 
-import physdyn.models.priors as priors  # noqa: E402
 from physdyn.geometry.mesh_io import load_mesh  # noqa: E402
 from physdyn.predict.predictor import contact_prior_predictor  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
@@ -84,26 +79,15 @@ def onestep(store, parsed, predictor) -> None:
               f"{np.nanmedian(speed):.2f} | {np.median(a[m, 5]):.1f} |")
 
 
-def sweep(store, parsed, predictor) -> None:
-    req = fr.requests_from_store(store)
-    print("| footprint depth (mm) | points | position / sliding | rotation (deg) |\n|---|---|---|---|")
-    for depth in (0.005, 0.002, 0.001, 0.0005):
-        for k in (4, 8):
-            priors.SUPPORT_DEPTH, priors.SUPPORT_POINTS = depth, k
-            out = fr.physdyn_batched({"p": predictor}, parsed, req, req.rounds(), False)["p"]
-            s = fr.score(req, out)
-            print(f"| {1000 * depth:g} | {k} | {s['position_over_sliding']:.3f} | {s['rotation_deg']:.1f} |", flush=True)
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("what", choices=("bins", "onestep", "sweep"))
+    ap.add_argument("what", choices=("bins", "onestep"))
     ap.add_argument("--work", default="runs/frontier")
     args = ap.parse_args()
     torch.set_num_threads(1)
     warnings.simplefilter("ignore")
     store, parsed = setup(Path(args.work))
-    {"bins": bins, "onestep": onestep, "sweep": sweep}[args.what](store, parsed, contact_prior_predictor())
+    {"bins": bins, "onestep": onestep}[args.what](store, parsed, contact_prior_predictor())
 
 
 if __name__ == "__main__":

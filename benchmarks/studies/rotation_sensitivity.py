@@ -6,8 +6,8 @@ spin about the vertical at step 0, or the speed at step 0 (what an observation w
 Scored as the frontier scores (non-toppling medians; position as a fraction of Coulomb sliding's). The
 unchanged row is the re-simulation floor, the frontier table's "PyBullet 1/960 s" row.
 
-    python benchmarks/studies/rotation_sensitivity.py              # both frontier sets, ~6 minutes
-    python benchmarks/studies/rotation_sensitivity.py --sets wheel --factors 1.01 0.99
+    python -m benchmarks.studies.rotation_sensitivity              # both frontier sets, ~6 minutes
+    python -m benchmarks.studies.rotation_sensitivity --sets wheel --factors 1.01 0.99
 
 Needs the frontier's truth stores (runs/frontier/{pybullet,wheel}/meshes_60_truth_x5.zarr, made by
 benchmarks/frontier.py on first use). docs/research/friction-and-sensitivity.md.
@@ -16,16 +16,14 @@ benchmarks/frontier.py on first use). docs/research/friction-and-sensitivity.md.
 from __future__ import annotations
 
 import argparse
-import sys
 import warnings
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-import frontier as fr  # noqa: E402
-from frontier_sets import collect_set, requests_from_store, truth_store  # noqa: E402
+from benchmarks import frontier as fr  # noqa: E402
+from benchmarks.frontier_sets import collect_set, requests_from_store, truth_store  # noqa: E402
 
 from physdyn.config import PhysicsConfig, config_from_dict  # noqa: E402
 from physdyn.geometry.mesh_io import load_mesh  # noqa: E402

@@ -8,7 +8,7 @@ spliced: the simulated states up to step K, then the model's changes applied fro
 step K. Prints the final position and rotation (non-toppling medians) of the model alone, cloud_sim alone
 and the splice for each K, and the seconds each takes.
 
-    python benchmarks/studies/sim_then_model.py STORE [SPLIT] [--checkpoint CKPT] [--steps 8 15 30]
+    python -m benchmarks.studies.sim_then_model STORE [SPLIT] [--checkpoint CKPT] [--steps 8 15 30]
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from physdyn.data.windows import store_spin_inertia, store_world_inertia
 from physdyn.eval.baselines import load_checkpoint
 from physdyn.eval.evaluate import gather_truth, select_sequences
 from physdyn.eval.metrics import final_errors
-from physdyn.eval.rollout import rollout
+from physdyn.eval.rollout import RolloutOptions, rollout
 from physdyn.geometry.rotations import quat_conjugate, quat_multiply
 from physdyn.predict.predictor import BUNDLED_CHECKPOINT
 from physdyn.sim.cloud_body import CloudSimulator
@@ -47,8 +47,7 @@ def main() -> None:
     ap.add_argument("--steps", type=int, nargs="+", default=[8, 15, 30])
     args = ap.parse_args()
     store = load_store(args.store)
-    model = load_checkpoint(args.checkpoint)
-    model.topple_classifier = None  # the trajectories are the question here
+    model = load_checkpoint(args.checkpoint)  # the network alone: the trajectories are the question here
     sims = select_sequences(store, args.split)
     truth = gather_truth(store, sims)
     S = truth["delta_position"].shape[1]
@@ -66,7 +65,7 @@ def main() -> None:
 
     print(f"{args.store} ({args.split}: {len(sims)} pushes, {int(standing.sum())} do not topple), {args.checkpoint}")
     t = time.perf_counter()
-    alone = rollout(model, subset, q0, p0, v0, w0, S, spin_inertia=spin)
+    alone = rollout(model, subset, q0, p0, v0, w0, S, RolloutOptions(spin_inertia=spin))
     report("model alone", alone.com_position, alone.orientation_xyzw, time.perf_counter() - t)
     inertia = store_world_inertia(store, sims, np.tile([0.0, 0.0, 0.0, 1.0], (len(sims), 1)))
     with CloudSimulator() as simulator:
@@ -76,8 +75,8 @@ def main() -> None:
         for K in args.steps:
             t = time.perf_counter()
             first = simulator.trajectories(points, q0, p0, v0, w0, truth["friction"], K, store.rate_hz, inertia)
-            continued = rollout(model, subset, q0, p0, v0, w0, S, (first["linear_velocity"][:, 1:], first["angular_velocity"][:, 1:]),
-                                spin_inertia=spin)
+            warm = (first["linear_velocity"][:, 1:], first["angular_velocity"][:, 1:])
+            continued = rollout(model, subset, q0, p0, v0, w0, S, RolloutOptions(warm_start_velocities=warm, spin_inertia=spin))
             p, q = splice(first, continued, K)
             report(f"cloud_sim {K} steps, then the model", p, q, time.perf_counter() - t)
 

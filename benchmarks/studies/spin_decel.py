@@ -1,7 +1,7 @@
 """How fast the contact prior takes the spin away, against the simulator, step by step from the true state.
 
-    python benchmarks/studies/spin_decel.py data/quickstart.zarr
-    python benchmarks/studies/spin_decel.py --all runs/external_val/external_60x10_from30_unnamed.zarr
+    python -m benchmarks.studies.spin_decel data/quickstart.zarr
+    python -m benchmarks.studies.spin_decel --all runs/external_val/external_60x10_from30_unnamed.zarr
 
 For the non-toppling pushes that spin (|w_z| > 2 rad/s at step 0) of each store (its validation and test
 splits, where the prior's constants were not fitted; with --all every push, for stores no model or prior
@@ -10,18 +10,16 @@ was fitted on, as the external meshes' are), the prior is fed the TRUE state of 
 the spin the simulator took away. Printed: the ratio of their medians (1: right; below 1 the prior lets
 the body spin too long, above 1 it stops it too early), per category, for three footprints: the shipped
 band (cloud points within 5 mm of the lowest) and the points within 1 or 3 mm of the cloud's convex-hull
-facet under the centre of mass (``footprint_facet.py``); then, for the band, by the tilt spin at step 0
+facet under the centre of mass (``common.touching_mask``); then, for the band, by the tilt spin at step 0
 (does rocking after the push explain the misses?). The prior uses the body's I_zz / m, as the bundled
 model does. No patch, no file written.
 """
 import sys
-from pathlib import Path
 
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from footprint_facet import touching_mask  # noqa: E402
+from benchmarks.studies.common import touching_mask
 
 from physdyn.data.store import load_store  # noqa: E402
 from physdyn.data.windows import store_spin_inertia, world_oriented_points  # noqa: E402

@@ -1,6 +1,6 @@
 """The simulator's spin friction against the contact prior's, on three simple solids pushed from rest.
 
-    python benchmarks/studies/spin_primitives.py
+    python -m benchmarks.studies.spin_primitives
 
 A disk (r 5 cm, h 2 cm), an upright cylinder (r 4 cm, h 10 cm) and a box (10 x 6 x 4 cm), made with trimesh,
 prepared as `physdyn predict` prepares a mesh, given a spin (and a slide) directly, simulated per the
@@ -19,26 +19,10 @@ import numpy as np
 import torch
 import trimesh
 
-from physdyn.models.priors import contact_changes, contact_geometry
-from physdyn.models.rotations import quat_multiply, rotvec_to_quat
+from benchmarks.studies.common import RATE, STEPS, prior_rollout
+from physdyn.models.priors import contact_geometry
 from physdyn.predict.body import prepare_body
 from physdyn.predict.simulator import simulate_from_state
-
-RATE, STEPS, MU = 15.0, 5, 0.25
-
-
-def prior_rollout(geometry, v0, w0, rate=RATE, friction=MU):
-    """The contact prior alone from a slide v0 along x and a spin w0: (w_z, horizontal speed) over STEPS steps."""
-    v = torch.tensor([[[v0, 0.0, 0.0]]]); w = torch.tensor([[[0.0, 0.0, w0]]]); q = torch.tensor([[[0.0, 0.0, 0.0, 1.0]]])
-    spins, speeds = [w0], [abs(v0)]
-    for _ in range(STEPS):
-        with torch.no_grad():
-            c = contact_changes(v, w, q, geometry, 1 / rate, friction)
-        v, w = v + c[..., 0:3], w + c[..., 3:6]
-        q = quat_multiply(rotvec_to_quat(c[..., 9:12]), q)
-        spins.append(w[0, 0, 2].item()); speeds.append(v[0, 0, :2].norm().item())
-    return np.array(spins), np.array(speeds)
-
 
 def main() -> None:
     warnings.simplefilter("ignore")

@@ -14,7 +14,7 @@ of each push (bodies prepared and their collision shapes built outside the timin
 row alike, and for the prior rows ``continuation``, the prior's part of it. The frontier measures the chosen
 schedule's cost, build included and the fastest of three, beside every fixed step.
 
-    python benchmarks/studies/step_schedule.py                 # the pybullet set, ~2 minutes
+    python -m benchmarks.studies.step_schedule                 # the pybullet set, ~2 minutes
 
 Only the pybullet set: the wheel set is for measuring, never for choosing (frontier.py measures the chosen
 schedule on both). docs/research/impact-phase.md.
@@ -23,7 +23,6 @@ schedule on both). docs/research/impact-phase.md.
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 import warnings
 from dataclasses import replace
@@ -31,9 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-import frontier as fr  # noqa: E402
-from frontier_sets import collect_set, requests_from_store, truth_store  # noqa: E402
+from benchmarks import frontier as fr  # noqa: E402
+from benchmarks.frontier_sets import collect_set, requests_from_store, truth_store  # noqa: E402
 
 from physdyn.config import PhysicsConfig, config_from_dict  # noqa: E402
 from physdyn.geometry.mesh_io import load_mesh  # noqa: E402

@@ -3,25 +3,20 @@ so at prediction those can be taken as its hull instead of running qhull (physdy
 ``thin_hull_surface``). Does that thin as qhull's merged hull does, what does it save, and does it change
 the ``fast`` model's accuracy? (docs/research/fast-cost.md.)
 
-    python benchmarks/studies/thin_known_hull.py clouds [FOLDER ...] [--points 256] [--count 64]
-    python benchmarks/studies/thin_known_hull.py accuracy CKPT
+    python -m benchmarks.studies.thin_known_hull clouds [FOLDER ...] [--points 256] [--count 64]
 
 ``clouds``: for each mesh (default: pybullet_data's random_urdfs 000-999; the study sets' folders
 are runs/frontier/pybullet/meshes_60 runs/external_val_100/meshes runs/robosuite/meshes), its prepared
 body's ``hull_surface`` cloud: whether qhull (``THIN_QHULL_OPTIONS``, facets merged within 1e-7) marks exactly
 its first min(H, N) points, whether the thinned clouds are equal, and the time of each thinning.
-``accuracy``: ``fast_variants.py sets`` (every push of the sets a choice may be made on) with clouds thinned
-by qhull, then from their known hull. The frontier's wheel set is read by neither.
 """
 
 from __future__ import annotations
 
 import argparse
 import glob
-import sys
 import time
 import warnings
-from pathlib import Path
 
 import numpy as np
 
@@ -71,24 +66,6 @@ def clouds(folders: list[str], points: int, count: int) -> None:
               flush=True)
 
 
-def accuracy(checkpoint: str) -> None:
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    import fast_variants
-
-    import physdyn.predict.body as predict_body
-    import physdyn.predict.predictor as predictor_module
-
-    print("thinned by qhull:")
-    rollout = predictor_module.rollout
-    predictor_module.rollout = lambda *args, **kwargs: rollout(*args, **{**kwargs, "hull_counts": None})
-    try:
-        fast_variants.sets([checkpoint])
-    finally:
-        predictor_module.rollout = rollout
-    print("thinned from the known hull:")
-    fast_variants.sets([checkpoint])
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -96,14 +73,9 @@ def main() -> None:
     c.add_argument("folders", nargs="*")
     c.add_argument("--points", type=int, default=256, help="the cloud's size (the shipped models': 256)")
     c.add_argument("--count", type=int, default=64, help="thinned to (the fast model's PointNets: 64)")
-    a = sub.add_parser("accuracy")
-    a.add_argument("checkpoint")
     args = parser.parse_args()
     warnings.simplefilter("ignore")
-    if args.command == "clouds":
-        clouds(args.folders, args.points, args.count)
-    else:
-        accuracy(args.checkpoint)
+    clouds(args.folders, args.points, args.count)
 
 
 if __name__ == "__main__":

@@ -6,10 +6,10 @@ features 0.90-0.91). This asks impact_pointnet.py's PointNet (the cloud turned t
 the frame of the travel, the step-0 velocities and spins in that frame, I_zz / m) for the topple label of
 every push, toppling or not, trained on growing sets of shapes and scored on shapes it never saw.
 
-    python benchmarks/studies/topple_pointnet.py export data/quickstart_hull_many.zarr data/clusters_hull.zarr \\
+    python -m benchmarks.studies.topple_pointnet export data/quickstart_hull_many.zarr data/clusters_hull.zarr \\
         runs/urdf_train/urdf_160_999_hull256.zarr --external runs/external_val_100/urdf_100_159_hull256.zarr \\
         runs/external_wheel/wheel_60_hull256.zarr --out runs/impact/topple.npz
-    python benchmarks/studies/topple_pointnet.py train runs/impact/topple.npz --runs 0,1,2:all --mirror --device cuda
+    python -m benchmarks.studies.topple_pointnet train runs/impact/topple.npz --runs 0,1,2:all --mirror --device cuda
 
 The stores are those of impact_pointnet.py (its docstring makes them). docs/research/topple-from-cloud.md.
 """
@@ -25,8 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from impact_pointnet import parse_run  # noqa: E402
+from benchmarks.studies.common import parse_run
 
 from physdyn.models.topple_pointnet import (PointNetToppleClassifier, ToppleNet, TrainingSet,  # noqa: E402
                                             store_training_set, train_network)
@@ -124,10 +123,9 @@ def frontier(weights: list[Path], work: Path, sets: list[str]) -> None:
     """The saved classifiers, alone and averaged, on the frontier's own pushes (benchmarks/frontier.py's truth
     stores, every push to its own length), each mesh prepared as ``predict`` prepares it (its `hull_surface`
     256 points, its mass properties): the topple accuracy of the frontier's tables, with no simulator."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     import warnings
 
-    from frontier_sets import collect_set, requests_from_store, truth_store
+    from benchmarks.frontier_sets import collect_set, requests_from_store, truth_store
 
     from physdyn.geometry.mass import vertical_inertia
     from physdyn.geometry.mesh_io import load_mesh

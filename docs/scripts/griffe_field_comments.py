@@ -1,6 +1,6 @@
 """A griffe extension for the config schema page: a dataclass's fields become an "Attributes" table.
 
-physdyn's config dataclasses (``physdyn/config.py``) document each field with a ``#`` comment, on its line or
+physdyn's config dataclasses (``physdyn/config/``) document each field with a ``#`` comment, on its line or
 on the lines just above it, which griffe does not read. For every dataclass of the modules named in
 ``modules`` (and their submodules), this appends a Google-style ``Attributes:`` section to the class docstring: each field with its
 type, its comment and its default. mkdocs.yml loads it for mkdocstrings (``extensions:``).

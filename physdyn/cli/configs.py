@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from physdyn.config import PRESETS, list_presets
+from physdyn.config import PRESET_KINDS, PRESETS, list_presets
 
 # Handlers import the library themselves, so `physdyn --help` stays light (see physdyn/cli/__init__.py).
 
@@ -20,7 +20,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                      "--config quickstart`, `physdyn reproduce --scale tiny`; or copy a file to start your own "
                      "(--path prints where they are)."),
     )
-    p.add_argument("kind", nargs="?", choices=["data", "experiment", "model", "trainer", "reproduce"],
+    p.add_argument("kind", nargs="?", choices=["data", "experiment", "model", "trainer", "reproduce", "predictor"],
                    help="only this kind")
     p.add_argument("--path", action="store_true", help="print the folder holding the presets and exit")
     p.set_defaults(func=run, parser=p)
@@ -28,14 +28,17 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 USED_BY = {"data": "physdyn simulate --config NAME", "experiment": "physdyn fit --config NAME",
            "model": "defaults of experiment presets", "trainer": "defaults of experiment presets",
-           "reproduce": "physdyn reproduce --scale NAME"}
+           "reproduce": "physdyn reproduce --scale NAME",
+           "predictor": "physdyn predict --checkpoint NAME; load_predictor(NAME)"}
 
 
 def run(args: argparse.Namespace) -> int:
     if args.path:
         print(PRESETS.resolve())
         return 0
-    for kind, entries in list_presets(args.kind).items():
+    # the predictor presets (a pipeline of stages each: physdyn.pipeline.presets) beside the config kinds
+    kinds = [args.kind] if args.kind else list(dict.fromkeys([*PRESET_KINDS, "predictor"]))
+    for kind, entries in ((k, list_presets(k)[k]) for k in kinds):
         print(f"{kind} ({USED_BY[kind]}):")
         width = max((len(name) for name, _ in entries), default=0)
         for name, summary in entries:

@@ -136,4 +136,4 @@ def _prior(rate_hz: float, num_points: int):
     """The contact prior alone at the first store's rate and cloud size (it reads hull_surface clouds)."""
     from physdyn.predict.predictor import contact_prior_predictor
 
-    return contact_prior_predictor(rate_hz=rate_hz, num_points=num_points).model
+    return contact_prior_predictor(rate_hz=rate_hz, num_points=num_points).model.network

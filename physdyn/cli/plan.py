@@ -79,13 +79,16 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from physdyn.cli.predict import print_mesh_notes
     from physdyn.config import PhysicsConfig
+    from physdyn.plan import PlanOptions, PushBounds, plan_push
+    from physdyn.plan.files import check_plan_path, plan_summary, write_plan, write_plan_viewer
+    from physdyn.plan.goal import check_budget, check_goal
+    from physdyn.plan.planner import check_search
     from physdyn.predict.body import prepare_body
-    from physdyn.predict.plan_files import check_plan_path, plan_summary, write_plan, write_plan_viewer
-    from physdyn.predict.planner import check_budget, check_goal, check_search, resolve_bounds
     from physdyn.predict.predictor import check_orientation, load_predictor
 
     # Every check that needs no model comes first, so a bad goal fails fast and writes nothing.
-    _, speed_max, _, _ = resolve_bounds(args.speed_min, args.speed_max, args.height_fraction, args.lateral_fraction)
+    bounds = PushBounds(args.speed_min, args.speed_max, args.height_fraction, args.lateral_fraction)
+    _, speed_max, _, _ = bounds.resolved()
     check_goal(args.goal, args.goal_yaw, args.upright, speed_max, PhysicsConfig())
     check_budget(args.budget)
     check_search(args.search, args.pybullet_step, args.screen)
@@ -103,11 +106,9 @@ def run(args: argparse.Namespace) -> int:
         warnings.simplefilter("always")
         body = prepare_body(args.mesh, args.scale)
         predictor = load_predictor(args.checkpoint)
-        result = predictor.plan(body, args.goal, args.goal_yaw, args.upright, args.budget, orientation_xyzw=orientation,
-                                seed=args.seed, speed_min=args.speed_min, speed_max=args.speed_max,
-                                height_fraction=args.height_fraction, lateral_fraction=args.lateral_fraction,
-                                verify=args.verify, search=args.search, pybullet_step=args.pybullet_step,
-                                screen=args.screen, check=not args.no_check)
+        options = PlanOptions(search=args.search, screen=args.screen, pybullet_step=args.pybullet_step,
+                              check=not args.no_check, seed=args.seed, verify=args.verify, bounds=bounds)
+        result = plan_push(predictor, body, args.goal, args.goal_yaw, args.upright, args.budget, orientation, options)
     print_mesh_notes(notes)
     print(plan_summary(result))
     if args.out:

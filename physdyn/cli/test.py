@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     if args.warm_start < 0:
         raise PhysdynError(f"--warm-start must be >= 0, got {args.warm_start}")
     check_report_target(args.out, args.overwrite)
-    model, data = checkpoint_and_store(args.checkpoint, args.data)
+    model, data = checkpoint_and_store(args.checkpoint, args.data, stages=True)
     baselines = ["stay_put", "coulomb_slide", *(["cloud_sim"] if args.cloud_sim else []),
                  *(load_checkpoint(c) for c in args.baseline_checkpoint)]
     result = compare(model, data, baselines, split=args.split, warm_start=args.warm_start, categories=args.categories,

@@ -134,7 +134,7 @@ def _from_store(args: argparse.Namespace) -> Path:
     if not args.out:
         raise PhysdynError("pass --out PAGE.html for the page")
     out = check_viewer_path(args.out, args.overwrite)
-    model, data = checkpoint_and_store(args.checkpoint, args.data)
+    model, data = checkpoint_and_store(args.checkpoint, args.data, stages=True)
     store = load_store(data)
     sims = np.asarray(args.sims, dtype=np.int64)
     bad = sims[(sims < 0) | (sims >= store.num_sims)]

@@ -67,6 +67,10 @@ def summarize(d: StoreData) -> dict:
         "skipped_shapes": len(d.attrs.get("skipped", [])),
         "tilt_chatter_rad_s": tilt_chatter(d),
     }
+    if "ensemble" in d.attrs:  # members per push, steps, seconds and the uncertainty, as simulated
+        steps = d.extra.get("ensemble/topple_step", np.zeros((0, 0)))
+        out["ensemble"] = {**d.attrs["ensemble"], "pushes": len(steps),
+                           "topple_fraction": float(np.mean(steps >= 0)) if steps.size else None}
     if "shapes/exact_mass" in d.extra and out["mass_method"] != "exact":
         exact = d.extra["shapes/exact_mass"]
         out["voxel_vs_exact_mass_error"] = _stats(np.abs(d.mass - exact) / exact)
@@ -118,6 +122,12 @@ def format_summary(s: dict) -> str:
     phys = s["physics"]
     if phys:
         lines.append("physics    " + ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in phys.items()))
+    ens = s.get("ensemble")
+    if ens:
+        spread = ", ".join(f"{k}={v:g}" for k, v in ens["uncertainty"].items())
+        topple = "-" if ens["topple_fraction"] is None else f"{100 * ens['topple_fraction']:.1f} % topple"
+        lines.append(f"ensemble   {ens['members']} members per push ({ens['pushes']} pushes), {ens['steps']} steps "
+                     f"({ens['seconds']:g} s) each, {topple}; uncertainty {spread}")
     if s["skipped_shapes"]:
         lines.append(f"skipped    {s['skipped_shapes']} unusable shapes (listed in the store's 'skipped' attribute)")
     return "\n".join(lines)

@@ -16,6 +16,7 @@ from physdyn.data.store import StoreWriter, replacing_store
 from physdyn.errors import ConfigError, ShapeError
 from physdyn.files import progress_bar
 from physdyn.geometry.sampling import open3d
+from physdyn.sim.ensemble import EnsemblePlan, members_arrays
 from physdyn.sim.generate import SimulatedBlock, config_hash, plan, simulate_blocks
 from physdyn.write_lock import write_lock
 
@@ -76,6 +77,9 @@ def _generate(cfg: DataConfig, out: str, blocks, categories, chash: str, workers
             "config_hash": chash,
             "num_blocks": len(blocks),
         }
+        ensemble = EnsemblePlan.from_config(cfg)
+        if ensemble is not None:
+            attrs["ensemble"] = ensemble.describe()
         writer = StoreWriter.create(out, attrs)
     if resume and writer.arrays_written:  # killed while it removed the parts: only marking it complete is left
         return _completed(writer, len(blocks), started)
@@ -115,7 +119,8 @@ def _completed(writer: StoreWriter, num_blocks: int, started: float) -> Generati
 
 def block_part(block: SimulatedBlock) -> tuple[dict[str, np.ndarray], dict]:
     """A simulated block as the store's part: its arrays (``sims/shape_local`` indexes the block's shapes,
-    ``sims/length`` counts each simulation's frames) and attributes (skipped shapes, notes)."""
+    ``sims/length`` counts each simulation's frames; ``ensemble/`` its pushes' members, if any) and
+    attributes (skipped shapes, notes)."""
     def stack(values, dtype, shape=()):
         return np.asarray(values, dtype=dtype).reshape((len(values),) + shape)
 
@@ -154,6 +159,8 @@ def block_part(block: SimulatedBlock) -> tuple[dict[str, np.ndarray], dict]:
         "frames/angular_velocity": cat("angular_velocity", 3),
         "frames/topple_label": np.concatenate([t.topple_label for t in trajs]) if trajs else np.zeros(0, bool),
     }
+    if block.ensemble is not None:
+        arrays.update(members_arrays(block.members, block.ensemble))
     return arrays, {"skipped": block.skipped, "notes": block.notes}
 
 

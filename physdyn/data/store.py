@@ -29,6 +29,7 @@ from physdyn.files import jsonable
 
 FORMAT_VERSION = 1
 PARTS = "_parts"
+CHUNK_BYTES = 32 << 20
 
 # name -> (trailing shape, dtype); the leading dimension is S (shapes), M (sims) or F (frames).
 SCHEMA: dict[str, tuple[tuple[int, ...], str]] = {
@@ -131,7 +132,8 @@ def _is_physdyn_store(url: str | Path) -> bool:
 def _write_array(group: zarr.Group, name: str, data: np.ndarray) -> None:
     data = np.asarray(data)
     kind = SCHEMA.get(name, ((), str(data.dtype)))[1]
-    rows = max(1, min(len(data), 1 << 16)) if data.ndim else 1
+    # at most 64k rows and 32 MiB a chunk: an ensemble's row (K members x T steps) is tens of kB
+    rows = max(1, min(len(data), 1 << 16, CHUNK_BYTES // max(1, data[:1].nbytes))) if data.ndim else 1
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # variable-length strings are "not yet in the v3 spec"
         if kind == "str" or data.dtype.kind in "UO":

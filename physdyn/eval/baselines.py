@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from physdyn.errors import CheckpointError, PhysdynError
-from physdyn.eval.rollout import RolloutResult, state_changes
+from physdyn.pipeline.trajectory import RolloutResult, state_changes
 
 GRAVITY = 9.81
 
@@ -156,54 +156,48 @@ BASELINES: dict[str, type[Baseline]] = {"stay_put": StayPut, "coulomb_slide": Co
 
 
 def load_checkpoint(path: str | Path):
-    """A ``DynamicsNetwork`` from a checkpoint of `physdyn fit` (plain torch: predicting and evaluating need not
-    import Lightning); a one-line ``CheckpointError`` otherwise."""
+    """The ``DynamicsNetwork`` of a checkpoint of `physdyn fit` (plain torch: predicting and evaluating need not
+    import Lightning); a one-line ``CheckpointError`` otherwise. Its topple classifier and end correction, if
+    any, are stages of its pipeline (``physdyn.pipeline.presets.load_pipeline``), not of the network."""
     from physdyn.models.checkpoint_file import read_checkpoint  # torch: not for the numpy baselines
-    from physdyn.models.dynamics_network import DynamicsNetwork
+    from physdyn.pipeline.presets import network_from_checkpoint
 
-    path = Path(path)
     # a one-line error for a missing, unreadable, foreign or code-carrying file; "bundled" and "fast" name the
     # shipped models there
-    raw = read_checkpoint(path)
-    try:
-        # Built as Lightning's load_from_checkpoint builds it, but from the dict read without running code:
-        # that one reads the file again, and before Lightning 2.6 with weights_only=False.
-        model = DynamicsNetwork(**raw["hyper_parameters"])
-        model.on_load_checkpoint(raw)
-        model.load_state_dict(raw["state_dict"])
-    except PhysdynError:
-        raise
-    except Exception as exc:
-        raise CheckpointError(f"cannot load {path} as a physdyn model: {type(exc).__name__}: "
-                              f"{str(exc).splitlines()[0] if str(exc) else ''}") from None
-    model.eval()
-    return model
+    return network_from_checkpoint(read_checkpoint(path), str(path))
 
 
-def checkpoint_and_store(checkpoint: str | Path, data: str | None = None):
-    """(the model of ``checkpoint``, the store to use: ``data`` or the one it was trained on)."""
-    model = load_checkpoint(checkpoint)
-    store = data or model.data_info.get("store")
+def checkpoint_and_store(checkpoint: str | Path, data: str | None = None, stages: bool = False):
+    """(the network of ``checkpoint``, or with ``stages`` its whole pipeline (with what `fit-topple` and
+    `fit-outcome` added), the store to use: ``data`` or the one it was trained on)."""
+    model = resolve_predictor(checkpoint) if stages else load_checkpoint(checkpoint)
+    network = model.network if stages else model
+    store = data or network.data_info.get("store")
     if not store:
         raise CheckpointError(f"{checkpoint} does not record its store; pass --data STORE")
     return model, store
 
 
 def resolve_predictor(spec: Any):
-    """A baseline name, a ``Baseline``, a ``DynamicsNetwork`` (or its ``DynamicsModel``) or a checkpoint path -> the predictor."""
-    if isinstance(spec, Baseline) or hasattr(spec, "encode_points"):
+    """A baseline name, a ``Baseline``, a ``DynamicsNetwork`` (or its ``DynamicsModel``), a ``Pipeline``, or a
+    checkpoint path (its pipeline, with what `fit-topple` and `fit-outcome` added) -> the predictor."""
+    if isinstance(spec, Baseline) or hasattr(spec, "encode_points") or hasattr(spec, "motion"):
         return spec
     if isinstance(spec, str) and spec in BASELINES:
         return BASELINES[spec]()
     if isinstance(spec, (str, Path)):
-        return load_checkpoint(spec)
+        from physdyn.pipeline.presets import load_pipeline  # torch: not for the numpy baselines
+
+        return load_pipeline(spec)
     raise TypeError(f"cannot evaluate a {type(spec).__name__}; pass a DynamicsNetwork, a checkpoint path or one of {sorted(BASELINES)}")
 
 
 def predictor_name(predictor: Any, fallback: str = "model") -> str:
+    """A baseline's name, or the name in a network's config (a pipeline's: its network's)."""
     if isinstance(predictor, Baseline):
         return predictor.name
+    network = getattr(predictor, "network", None) or predictor  # a Pipeline's network, or the network itself
     try:
-        return str(predictor.config.name) or fallback
+        return str(network.config.name) or fallback
     except AttributeError:
         return fallback

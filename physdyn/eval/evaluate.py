@@ -19,8 +19,7 @@ from physdyn.data.windows import frame_targets, store_spin_inertia, store_world_
 from physdyn.errors import PhysdynError
 from physdyn.eval import metrics as M
 from physdyn.eval.baselines import Baseline, predictor_name, resolve_predictor
-from physdyn.eval.rollout import DELTA_KEYS, RolloutResult, rollout, sim_steps, teacher_forced
-from physdyn.models.topple_classifier import given_points
+from physdyn.eval.rollout import DELTA_KEYS, RolloutOptions, RolloutResult, as_pipeline, rollout, teacher_forced
 
 GROUPS = ("non_toppling", "toppling", "all")
 
@@ -125,16 +124,15 @@ def predict_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, truth: 
     """Roll ``predictor`` out over ``sims`` for the horizon of ``truth`` (from ``gather_truth``)."""
     steps = truth["delta_position"].shape[1]
     rng = np.random.default_rng(seed)
-    classifier = getattr(predictor, "topple_classifier", None)
-    wants = getattr(classifier, "points_method", None)  # a PointNet reads its kind of cloud, given whole (thinned by it)
-    held = None if classifier is None else given_points(classifier)
+    pipeline = None if isinstance(predictor, Baseline) else as_pipeline(predictor)
+    topple, correction = (None, None) if pipeline is None else (pipeline.topple, pipeline.correction)
+    # a PointNet classifier reads its kind of cloud, given whole (thinned by it), and so does a PointNet correction
+    wants = topple.cloud.method if topple is not None and topple.strict_cloud else None
     if wants is not None:
-        _check_store_clouds(store, "topple classifier", wants, held)
-    correction = getattr(predictor, "outcome_correction", None)
-    if getattr(correction, "num_points", 0):  # a PointNet correction (fit-outcome --pointnet): its size; thinning, hull_surface
-        _check_store_clouds(store, "outcome correction", "hull_surface" if correction.thinned_from else store.points_method,
-                            correction.thinned_from or correction.num_points)
-    model_reads = str(getattr(predictor, "data_info", {}).get("points_method") or "surface")
+        _check_store_clouds(store, "topple classifier", wants, topple.cloud.count)
+    if correction is not None and correction.strict_cloud:
+        _check_store_clouds(store, "outcome correction", correction.cloud.method or store.points_method, correction.cloud.count)
+    model_reads = "surface" if pipeline is None else pipeline.points_method
     if wants is not None and model_reads != wants:  # one store cannot feed both: the model would get the wrong kind
         raise PhysdynError(f"the model reads {model_reads} clouds and its topple classifier {wants} ones; a store holds "
                            "one kind, so `physdyn test` cannot feed both: measure it through `predict` "
@@ -149,16 +147,15 @@ def predict_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, truth: 
             continue
         k = min(int(warm_start), steps)
         warm = (truth["linear_velocity"][sl, 1:k + 1], truth["angular_velocity"][sl, 1:k + 1]) if k else None
-        points = _model_points(store, sims[sl], predictor.num_points, rng)
-        classifier = getattr(predictor, "topple_classifier", None)
-        simulates = classifier is not None or sim_steps(predictor) > 0
+        points = _model_points(store, sims[sl], pipeline.network.num_points, rng)
+        simulates = topple.cloud is not None or pipeline.motion.reads_stage_cloud
         topple_points = None
         if simulates:  # the classifier's cloud size (else the whole cloud), drawn from a stream of its own: the model's draws stay as they were
-            topple_points = _model_points(store, sims[sl], None if classifier is None else given_points(classifier),
+            topple_points = _model_points(store, sims[sl], None if topple.cloud is None else topple.given_count,
                                           np.random.default_rng([seed, sl.start]))
-        parts.append(rollout(predictor, points, q0, p0, v0, w0, steps, warm, topple_points_body=topple_points,
-                             spin_inertia=store_spin_inertia(store, sims[sl], q0),
-                             body_inertia=store_world_inertia(store, sims[sl], q0) if simulates else None))
+        parts.append(rollout(pipeline, points, q0, p0, v0, w0, steps, RolloutOptions(
+            warm, topple_points_body=topple_points, spin_inertia=store_spin_inertia(store, sims[sl], q0),
+            body_inertia=store_world_inertia(store, sims[sl], q0) if simulates else None)))
     return _concat(parts)
 
 
@@ -195,9 +192,10 @@ def predict_single_steps(predictor: Any, store: StoreData, sims: np.ndarray, tru
     rng = np.random.default_rng(seed)
     parts = []
     for sl in _chunks(B, batch_size):
-        points = _model_points(store, sims[sl], predictor.num_points, rng)
+        network = as_pipeline(predictor).network
+        points = _model_points(store, sims[sl], network.num_points, rng)
         q0 = truth["orientation_xyzw"][sl, 0]
-        parts.append(teacher_forced(predictor, points, q0, truth["linear_velocity"][sl, :S], truth["angular_velocity"][sl, :S],
+        parts.append(teacher_forced(network, points, q0, truth["linear_velocity"][sl, :S], truth["angular_velocity"][sl, :S],
                                     truth["orientation_xyzw"][sl, :S], spin_inertia=store_spin_inertia(store, sims[sl], q0)))
     return {k: np.concatenate([p[k] for p in parts], axis=0) for k in DELTA_KEYS}
 

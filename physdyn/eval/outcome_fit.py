@@ -9,11 +9,12 @@ import numpy as np
 
 from physdyn.data.windows import store_spin_inertia, store_world_inertia
 from physdyn.errors import PhysdynError
-from physdyn.eval.rollout import rollout
+from physdyn.eval.rollout import RolloutOptions, as_pipeline, rollout
 from physdyn.geometry.rotations import quat_to_matrix, wrap_angle
 from physdyn.models.outcome_correction import (EXTRA_STEPS, REST_SPEED, REST_SPIN, OutcomeCorrection, outcome_inputs,
                                                resting_state, train_outcome_network)
 from physdyn.models.topple_pointnet import POINT_WIDTHS
+from physdyn.pipeline.engine import Pipeline
 
 
 def store_outcomes(model: Any, stores: list[Any], chunk: int = 2048,
@@ -22,48 +23,44 @@ def store_outcomes(model: Any, stores: list[Any], chunk: int = 2048,
     ``EXTRA_STEPS`` past its truth's end: raw inputs (P, INPUTS), targets (P, 3) truth minus roll-out at rest,
     split (P,), shape (P,) (numbered across stores), rests (P,) whether the roll-out came to rest, frame (P, 3, 3)
     body -> the push's travel frame at step 0; and clouds (S, N, 3), the stores' body-frame clouds."""
-    # Neither the correction being replaced nor a topple classifier (its probabilities move nothing) is rolled out
-    saved = getattr(model, "outcome_correction", None), getattr(model, "topple_classifier", None)
-    model.outcome_correction = model.topple_classifier = None
+    # The network alone: neither a correction being replaced nor a topple classifier (its probabilities move nothing)
+    model = as_pipeline(model.network if isinstance(model, Pipeline) else model)
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("inputs", "targets", "split", "shape", "rests", "frame")}
     if not any((s.topple_step < 0).any() for s in stores):
         raise PhysdynError("every push of the --data stores topples; the correction learns where pushes that do not "
                            "topple come to rest: fit on stores that have some")
-    try:
-        offset, done = 0, 0
-        total = sum(int((s.topple_step < 0).sum()) for s in stores)
-        for store in stores:
-            sims = np.flatnonzero(store.topple_step < 0)
-            lengths = store.lengths()
-            for part in np.array_split(sims, max(1, -(-len(sims) // chunk))):
-                if not len(part):
-                    continue
-                first, last = store.start[part], store.start[part] + lengths[part] - 1
-                q0, p0 = store.orientation_xyzw[first], store.com_position[first]
-                v0, w0 = store.linear_velocity[first], store.angular_velocity[first]
-                spin = store_spin_inertia(store, part, q0)
-                out = rollout(model, store.points[store.shape_id[part]], q0, p0, v0, w0,
-                              int(lengths[part].max()) - 1 + EXTRA_STEPS, spin_inertia=spin,
-                              body_inertia=store_world_inertia(store, part, q0))
-                p, q = out.com_position[:, -1], out.orientation_xyzw[:, -1]
-                v, w = out.linear_velocity[:, -1], out.angular_velocity[:, -1]
-                inputs, turn = outcome_inputs(v0, w0, spin, p0, q0, p, q, v, w)
-                truth = resting_state(turn, p0, q0, store.com_position[last], store.orientation_xyzw[last],
-                                      store.linear_velocity[last], store.angular_velocity[last])
-                target = truth[:, 3:] - inputs[:, 9:12]
-                target[:, 2] = wrap_angle(target[:, 2])
-                parts["inputs"].append(inputs)
-                parts["targets"].append(target)
-                parts["split"].append(np.asarray(store.split[part], dtype=np.int64))
-                parts["shape"].append(store.shape_id[part].astype(np.int64) + offset)
-                parts["frame"].append(turn @ quat_to_matrix(q0))
-                parts["rests"].append((np.linalg.norm(v, axis=1) < REST_SPEED) & (np.linalg.norm(w, axis=1) < REST_SPIN))
-                done += len(part)
-                if progress is not None:
-                    progress(done, total)
-            offset += store.num_shapes
-    finally:
-        model.outcome_correction, model.topple_classifier = saved
+    offset, done = 0, 0
+    total = sum(int((s.topple_step < 0).sum()) for s in stores)
+    for store in stores:
+        sims = np.flatnonzero(store.topple_step < 0)
+        lengths = store.lengths()
+        for part in np.array_split(sims, max(1, -(-len(sims) // chunk))):
+            if not len(part):
+                continue
+            first, last = store.start[part], store.start[part] + lengths[part] - 1
+            q0, p0 = store.orientation_xyzw[first], store.com_position[first]
+            v0, w0 = store.linear_velocity[first], store.angular_velocity[first]
+            spin = store_spin_inertia(store, part, q0)
+            out = rollout(model, store.points[store.shape_id[part]], q0, p0, v0, w0,
+                          int(lengths[part].max()) - 1 + EXTRA_STEPS,
+                          RolloutOptions(spin_inertia=spin, body_inertia=store_world_inertia(store, part, q0)))
+            p, q = out.com_position[:, -1], out.orientation_xyzw[:, -1]
+            v, w = out.linear_velocity[:, -1], out.angular_velocity[:, -1]
+            inputs, turn = outcome_inputs(v0, w0, spin, p0, q0, p, q, v, w)
+            truth = resting_state(turn, p0, q0, store.com_position[last], store.orientation_xyzw[last],
+                                  store.linear_velocity[last], store.angular_velocity[last])
+            target = truth[:, 3:] - inputs[:, 9:12]
+            target[:, 2] = wrap_angle(target[:, 2])
+            parts["inputs"].append(inputs)
+            parts["targets"].append(target)
+            parts["split"].append(np.asarray(store.split[part], dtype=np.int64))
+            parts["shape"].append(store.shape_id[part].astype(np.int64) + offset)
+            parts["frame"].append(turn @ quat_to_matrix(q0))
+            parts["rests"].append((np.linalg.norm(v, axis=1) < REST_SPEED) & (np.linalg.norm(w, axis=1) < REST_SPIN))
+            done += len(part)
+            if progress is not None:
+                progress(done, total)
+        offset += store.num_shapes
     out = {k: np.concatenate(v) for k, v in parts.items()}
     out["clouds"] = np.concatenate([np.asarray(s.points, dtype=np.float32) for s in stores])
     return out

@@ -13,11 +13,12 @@ from typing import Any, Sequence
 import numpy as np
 
 from physdyn.errors import PhysdynError
-from physdyn.files import save_figure_atomic, write_text_atomic
-from physdyn.eval.report import CURVE_MIN_SEQUENCES, UNITS, curve_end, draw_error_curves
+from physdyn.eval.report import CURVE_MIN_SEQUENCES, UNITS, curve_end
 from physdyn.eval.report import fmt_number as _num
+from physdyn.experiments.results_plots import draw_category_bars, draw_error_curve_plot
 from physdyn.experiments.suite import (BASELINES, CATEGORIES, FRICTION_WARM_STARTS, MANIFEST, RUN_FILE, SCALES,
                                        build_suite, load_scale, utc_now)
+from physdyn.files import write_text_atomic
 
 # The supplement's Table 1: relative roll-out errors on Speakers, non-toppling test sequences (percent).
 PUBLISHED_TABLE1 = {
@@ -268,55 +269,29 @@ def plotted_steps(curves: dict) -> int:
 
 
 def _plot_curves(series: list[tuple[str, dict | None]], path: Path, title: str) -> bool:
-    import matplotlib  # heavy (~0.4 s): loaded when a plot is drawn
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     series = [(label, r) for label, r in series if r is not None]
     if not series:
         return False
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    drawn = []
     for label, r in series:
         curves = r["curves"].get("non_toppling") or r["curves"]["all"]
-        draw_error_curves(axes, label, curves, r["rate_hz"], plotted_steps(curves))
-    axes[0].set(xlabel="time (s)", ylabel="position error (m)", title=f"{title}: position")
-    axes[1].set(xlabel="time (s)", ylabel="rotation error (deg)", title=f"{title}: rotation")
-    axes[0].legend(fontsize=7)
-    fig.text(0.5, 0.01, f"median over the sequences still moving at each time (band: interquartile range); a "
-             f"curve ends where fewer than a quarter of them, or {CURVE_MIN_SEQUENCES}, remain", ha="center",
-             fontsize=8, color="0.35")
-    fig.tight_layout(rect=(0, 0.04, 1, 1))
-    save_figure_atomic(fig, path, dpi=100)
-    plt.close(fig)
+        drawn.append((label, curves, r["rate_hz"], plotted_steps(curves)))
+    draw_error_curve_plot(drawn, path, title)
     return True
 
 
 def _plot_generalisation(res: _Results, path: Path) -> bool:
-    import matplotlib  # heavy (~0.4 s): loaded when a plot is drawn
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     procs = [("Single", "single"), ("Combined", "combined"), ("Leave-out", "leaveout")]
     if all(res.model(f"eval/{p}-{c}") is None for _, p in procs for c in CATEGORIES):
         return False
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    width = 0.2
-    x = np.arange(len(CATEGORIES))
-    for ax, key in zip(axes, ("position", "angle_deg")):
-        for i, (label, p) in enumerate(procs):
-            values = [_headline(res.model(f"eval/{p}-{c}"), key) for c in CATEGORIES]
-            ax.bar(x + i * width, values, width, label=label)
+    panels = []
+    for key in ("position", "angle_deg"):
+        bars = [(label, [_headline(res.model(f"eval/{p}-{c}"), key) for c in CATEGORIES], None) for label, p in procs]
         coul = [_headline(res.baseline(f"eval/combined-{c}", "coulomb_slide"), key) if res.metrics(f"eval/combined-{c}") else np.nan
                 for c in CATEGORIES]
-        ax.bar(x + 3 * width, coul, width, label="Coulomb sliding", color="grey")
-        ax.set_xticks(x + 1.5 * width, CATEGORIES, rotation=20)
-        ax.set_title(f"roll-out {SHORT[key]} error ({UNITS[key]}/step), non-toppling")
-    axes[0].legend(fontsize=7)
-    fig.tight_layout()
-    save_figure_atomic(fig, path, dpi=100)
-    plt.close(fig)
+        bars.append(("Coulomb sliding", coul, "grey"))
+        panels.append((f"roll-out {SHORT[key]} error ({UNITS[key]}/step), non-toppling", bars))
+    draw_category_bars(CATEGORIES, panels, path)
     return True
 
 

@@ -1,8 +1,9 @@
-"""The network: shape encoder + state predictor + head, its analytic prior, its roll-outs and its loss.
+"""The network: shape encoder + state predictor + head, and its analytic prior (its roll-outs:
+``batch_rollout``, ``single_rollout``; its training loss: ``network_loss``).
 
 Inputs and outputs of the public methods are in SI units; the network normalises with the scales it was
 trained with (kept in its hyper-parameters with its config, so a checkpoint restores it:
-``physdyn.eval.baselines.load_checkpoint``). The loss is computed in normalised units.
+``physdyn.eval.baselines.load_checkpoint``).
 
 ``DynamicsNetwork`` is plain torch: predicting, evaluating and fitting a correction or a classifier load a
 checkpoint into it without importing Lightning, which took 5 of a fresh ``physdyn predict`` process's
@@ -13,7 +14,6 @@ LightningModule that ``physdyn fit`` trains.
 from __future__ import annotations
 
 import contextlib
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, MutableMapping
@@ -24,17 +24,16 @@ import torch
 from physdyn.config import ExperimentConfig, config_from_dict, to_dict
 from physdyn.data.normalization import Normalization
 from physdyn.data.windows import DELTA_KEYS
-from physdyn.errors import CheckpointError, ConfigError
 from physdyn.models.batch_rollout import LINEAR, batch_rollout
-from physdyn.models.checkpoint_file import read_torch_file
+from physdyn.models.encoder_weights import load_encoder_weights
 from physdyn.models.heads.base import NUM_CHANGES
 from physdyn.models.heads.topple import NoToppleHead, ToppleHead
-from physdyn.models.losses import dynamics_loss
+from physdyn.models.linear_channels import check_combinable
+from physdyn.models.network_loss import network_loss
 from physdyn.models.predictors.none import NoPredictor
 from physdyn.models.priors import RESIDUAL_MASKS, SHAPE_PRIORS, contact_changes, contact_geometry, prior_changes
 from physdyn.models.rotations import rotation_6d
-from physdyn.models.single_rollout import SingleRollout
-from physdyn.models.topple_classifier import topple_classifier_from_dict
+from physdyn.models.single_rollout import SingleRollout, single_rollout
 from physdyn.registry import ENCODERS, HEADS, PREDICTORS
 
 
@@ -117,48 +116,27 @@ class DynamicsNetwork(torch.nn.Module):
         # The channels [dv, dw, dp, dtheta] the network's residual corrects (model.residual_channels); not
         # saved: the config rebuilds it.
         self.register_buffer("residual_mask", f32(RESIDUAL_MASKS[m.residual_channels]), persistent=False)
-        # Whether the sequence topples, from step-0 features (`physdyn fit-topple`); None: the head's rule.
-        self.topple_classifier = None
-        # A learned correction of where each push comes to rest (`physdyn fit-outcome`); None: none.
-        self.outcome_correction = None
         # Another DynamicsNetwork whose velocity and position changes replace this one's, both networks fed
         # the same state (`python -m physdyn.models.export --linear-from`); None: this model alone.
         self.linear_channels = None
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
-        # Checkpoints from before per-channel normalisation have no shift buffers: their shift is zero.
-        state = checkpoint.get("state_dict", {})
+        state = checkpoint.get("state_dict", {})  # from before per-channel normalisation: no shift buffers, shift zero
         for name in ("change_shift", "velocity_shift"):
             state.setdefault(name, torch.zeros_like(getattr(self, name)))
             if checkpoint.get("linear_channels"):
                 state.setdefault(f"linear_channels.{name}", torch.zeros_like(getattr(self, name)))
-        if checkpoint.get("topple_classifier"):
-            self.topple_classifier = topple_classifier_from_dict(checkpoint["topple_classifier"])
-        if checkpoint.get("outcome_correction"):
-            from physdyn.models.outcome_correction import OutcomeCorrection
-
-            self.outcome_correction = OutcomeCorrection.from_dict(checkpoint["outcome_correction"])
         if checkpoint.get("linear_channels"):  # its weights are in the state dict, under linear_channels.
             self.attach_linear_channels(type(self)(**checkpoint["linear_channels"]["hyper_parameters"]))
 
-    def on_save_checkpoint(self, checkpoint: dict) -> None:
-        if self.topple_classifier is not None:
-            checkpoint["topple_classifier"] = self.topple_classifier.to_dict()
-        if self.outcome_correction is not None:
-            checkpoint["outcome_correction"] = self.outcome_correction.to_dict()
+    def on_save_checkpoint(self, checkpoint: dict) -> None:  # the other network's weights are in the state dict
         if self.linear_channels is not None:
             checkpoint["linear_channels"] = {"hyper_parameters": dict(self.linear_channels.hparams)}
 
     def attach_linear_channels(self, model: "DynamicsNetwork") -> None:
-        """Take the velocity and position changes from ``model`` from now on (see ``linear_channels``)."""
-        if model.linear_channels is not None:
-            raise ConfigError("the model for the linear channels combines two networks itself; pass a plain one")
-        if model.uses_orientation and not self.uses_orientation:
-            raise ConfigError("the model for the linear channels is fed its orientation since step 0 and this one does not "
-                              "track it; combine it with a model trained with model.orientation_input=true")
-        if abs(float(model.data_info.get("rate_hz", 15.0)) - float(self.data_info.get("rate_hz", 15.0))) > 1e-9:
-            raise ConfigError(f"the two models predict at different rates ({model.data_info.get('rate_hz')} and "
-                              f"{self.data_info.get('rate_hz')} Hz); pass models trained on stores of the same rate")
+        """Take the velocity and position changes from ``model`` from now on (see ``linear_channels``); a
+        one-line ``ConfigError`` where the two cannot be combined (``check_combinable``)."""
+        check_combinable(self, model)
         self.linear_channels = model.to(self.device)
 
     def _keep_hyperparameters(self, values: dict) -> None:
@@ -167,8 +145,7 @@ class DynamicsNetwork(torch.nn.Module):
 
     @property
     def hparams(self) -> MutableMapping[str, Any]:
-        """The config, normalisation and data facts this network was built from (its checkpoint's
-        ``hyper_parameters``)."""
+        """The config, normalisation and data facts it was built from (a checkpoint's ``hyper_parameters``)."""
         return self._hyperparameters
 
     @property
@@ -407,117 +384,17 @@ class DynamicsNetwork(torch.nn.Module):
             with torch.inference_mode():
                 args = (points, linear_velocity0, angular_velocity0, steps, warm_linear, warm_angular, spin_inertia)
                 if len(points) == 1 and SingleRollout.supports(self):
-                    return self._single_rollout(*args, topple=topple, warm_turn=warm_turn)
+                    return single_rollout(self, *args, topple=topple, warm_turn=warm_turn)
                 return batch_rollout(self, *args, topple=topple, warm_turn=warm_turn)
         finally:
             if was_training:
                 self.train()
 
-    def _single_rollout(self, points, linear_velocity0, angular_velocity0, steps, warm_linear, warm_angular,
-                        spin_inertia=None, topple=True, warm_turn=None):
-        """One object: the same roll-out on numpy and Python numbers (``physdyn.models.single_rollout``)."""
-        feature = self.encode(torch.as_tensor(points, dtype=torch.float32, device=self.device), spin_inertia)
-        as64 = lambda x: None if x is None else np.asarray(torch.as_tensor(x).cpu(), np.float64)  # noqa: E731
-        warm_v, warm_w = as64(warm_linear), as64(warm_angular)
-        out = SingleRollout.of(self).run(feature, as64(linear_velocity0).reshape(3), as64(angular_velocity0).reshape(3),
-                                         steps, None if warm_v is None else warm_v[0], None if warm_w is None else warm_w[0],
-                                         topple, None if warm_turn is None else as64(warm_turn)[0])
-        return {k: None if x is None else torch.from_numpy(x) for k, x in out.items()}
-
-    # ------------------------------------------------------------------ training
-    def _fed_velocities(self, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Velocities fed at every step of a training window, and the targets (normalised) to match them.
-
-        With ``rollout.input_noise`` the fed velocities are perturbed and the velocity targets corrected to
-        lead back to the true next velocities (v_{t+1} - fed v_t), so the model learns to recover from its own
-        drift. Returns (linear (B, T, 3), angular (B, T, 3), targets (B, T, 12))."""
-        v, w = batch["linear_velocity"], batch["angular_velocity"]
-        if self.training:
-            v, w = self._perturbed(v, w)
-        return v, w, self._corrected_targets(batch, v, w)
-
-    def _perturbed(self, v: torch.Tensor, w: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """v, w (..., 3) plus Gaussian noise of std ``rollout.input_noise`` in normalised units (or as given)."""
-        sigma = self.config.rollout.input_noise
-        if sigma <= 0:
-            return v, w
-        noise = torch.randn(*v.shape[:-1], 6, device=v.device, dtype=v.dtype) * sigma * self.velocity_scale
-        return v + noise[..., :3], w + noise[..., 3:]
-
-    def _corrected_targets(self, batch: dict[str, torch.Tensor], v: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
-        """Normalised targets whose velocity changes lead from the fed v, w to the TRUE next velocities."""
-        true_next_v = batch["linear_velocity"] + batch["delta_linear_velocity"]
-        true_next_w = batch["angular_velocity"] + batch["delta_angular_velocity"]
-        si = torch.cat([true_next_v - v, true_next_w - w, batch["delta_position"], batch["delta_rotation"]], dim=-1)
-        return (si - self.change_shift) / self.change_scale
-
-    def _closed_loop(self, feature: torch.Tensor, batch: dict[str, torch.Tensor]):
-        """A training window fed step by step, each window with probability ``rollout.feedback`` on the
-        model's own (detached) velocity predictions from step 1 on, as a roll-out feeds them."""
-        v_true, w_true = batch["linear_velocity"], batch["angular_velocity"]
-        B, T = v_true.shape[:2]
-        own = (torch.rand(B, 1, device=v_true.device) < self.config.rollout.feedback)
-        orientation = batch.get("relative_orientation_xyzw") if self.uses_orientation else None
-        v, w = v_true[:, 0], w_true[:, 0]
-        fed_v, fed_w, changes, logits, state = [], [], [], [], None
-        for t in range(T):
-            v, w = self._perturbed(v, w)
-            q = None if orientation is None else orientation[:, t : t + 1]
-            c, logit, state = self(feature, v[:, None], w[:, None], state, q)
-            fed_v.append(v)
-            fed_w.append(w)
-            changes.append(c)
-            logits.append(logit)
-            if t + 1 < T:
-                si = (c[:, 0].detach() * self.change_scale + self.change_shift)
-                v = torch.where(own, v + si[:, 0:3], v_true[:, t + 1])
-                w = torch.where(own, w + si[:, 3:6], w_true[:, t + 1])
-        v_fed, w_fed = torch.stack(fed_v, 1), torch.stack(fed_w, 1)
-        logit = None if logits[0] is None else torch.cat(logits, dim=1)
-        return torch.cat(changes, dim=1), logit, self._corrected_targets(batch, v_fed, w_fed)
-
+    # ------------------------------------------------------------------ training and initialisation
     def compute_loss(self, batch: dict[str, torch.Tensor]):
-        feature = self.encode(batch["points"], batch.get("spin_inertia"))
-        if self.training and self.config.rollout.feedback > 0:
-            changes, logit, targets = self._closed_loop(feature, batch)
-        else:
-            v, w, targets = self._fed_velocities(batch)
-            orientation = batch.get("relative_orientation_xyzw") if self.uses_orientation else None
-            changes, logit, _ = self(feature, v, w, None, orientation)
-        lc = self.loss_config
-        return dynamics_loss(
-            changes, targets, logit, batch["topple_label"],
-            kind=lc.kind, weights=dict(vars(lc.weights)), eps=lc.eps, rest_threshold=lc.rest_threshold,
-            huber_delta=lc.huber_delta,
-        )
+        """The training loss of a batch of windows (``physdyn.models.network_loss``)."""
+        return network_loss(self, batch)
 
-    # ------------------------------------------------------------------ pretrained encoder
     def load_encoder_weights(self, path: str | Path) -> int:
-        """Copy the tensors of an encoder file from `physdyn pretrain` whose names and shapes match.
-
-        Returns how many were copied; raises ConfigError for a missing file, another encoder kind, or no
-        matching tensor at all. (The paper initialised only the PointNet part: layers whose widths differ,
-        like a different feature size, keep their fresh weights.)
-        """
-        path = Path(path)
-        if not path.is_file():
-            raise ConfigError(f"config key 'model.encoder_init': no file {path}; run `physdyn pretrain` first")
-        try:
-            saved = read_torch_file(path, "an encoder.pt written by `physdyn pretrain`")
-        except CheckpointError as exc:
-            raise ConfigError(f"config key 'model.encoder_init': {exc}") from None
-        name = saved.get("encoder") if isinstance(saved, dict) else None
-        if name != self.config.model.encoder.name:
-            raise ConfigError(
-                f"config key 'model.encoder_init': {path} holds a '{name}' encoder, the model uses "
-                f"'{self.config.model.encoder.name}'"
-            )
-        own = self.encoder.state_dict()
-        matched = {k: v for k, v in saved["state_dict"].items() if k in own and own[k].shape == v.shape}
-        if not any(not k.endswith("num_batches_tracked") for k in matched):
-            raise ConfigError(f"config key 'model.encoder_init': no tensor of {path} fits this encoder's layer sizes")
-        self.encoder.load_state_dict(matched, strict=False)
-        skipped = len(own) - len(matched)
-        if skipped:
-            warnings.warn(f"{path}: {skipped} encoder tensors differ in size and keep their initial values", stacklevel=2)
-        return len(matched)
+        """Copy the matching tensors of an encoder file from `physdyn pretrain` (``physdyn.models.encoder_weights``)."""
+        return load_encoder_weights(self, path)

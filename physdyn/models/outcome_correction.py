@@ -29,7 +29,7 @@ import torch
 
 from physdyn.geometry.rotations import quat_conjugate, quat_multiply, turn_about_vertical, world_delta_rotvec, wrap_angle
 from physdyn.models.topple_pointnet import (MIN_STEPS, PUSHES_PER_PASS, POINT_WIDTHS, ToppleNet, cloud_spin_inertia,
-                                           numpy_forward, numpy_layers, thinned_clouds, travel_scalars, travel_turn)
+                                           numpy_forward, numpy_layers, travel_scalars, travel_turn)
 
 KIND = "outcome_mlp"
 POINTNET_KIND = "outcome_pointnet"  # fit-outcome --pointnet: an older physdyn says it does not know it
@@ -90,7 +90,7 @@ class OutcomeCorrection:
     """An ensemble of ``OutcomeNet`` state dicts with the inputs' and targets' standardisation; with
     ``num_points`` > 0, of PointNets (``ToppleNet`` with three outputs) that also read each push's step-0
     cloud of that many points in the frame of its travel (``fit-outcome --pointnet``), thinned from
-    ``thinned_from``-point ``hull_surface`` clouds where that is set (``body_clouds``)."""
+    ``thinned_from``-point ``hull_surface`` clouds where that is set (``thinned_to``)."""
 
     networks: list[dict[str, torch.Tensor]]
     inputs_mean: np.ndarray
@@ -121,14 +121,23 @@ class OutcomeCorrection:
         self._layers = [(np.stack([s[f"{n}.weight"].double().numpy().T for s in self.networks]),
                          np.stack([s[f"{n}.bias"].double().numpy() for s in self.networks])[:, None, :]) for n in names]
 
-    def body_clouds(self, points_body: np.ndarray, hull_counts: Any = None) -> np.ndarray:
-        """The body-frame clouds (B, num_points, 3) it reads, from those it is given (B, N, 3): thinned as at
-        fitting where it was fitted on thinned ones, else as they are. N must be the size it was fitted on."""
+    @property
+    def given_points(self) -> int:
+        """The size of the body-frame clouds a PointNet correction is given: the size it was fitted on, or the one
+        it thins from (``thinned_to``); 0 for MLPs, which read no cloud."""
+        return self.thinned_from or self.num_points
+
+    @property
+    def thinned_to(self) -> int:
+        """The size it thins the clouds it is given to (``thinned_clouds``; 0: it reads them as they are)."""
+        return self.num_points if self.thinned_from else 0
+
+    def check_given(self, points_body: np.ndarray) -> None:
+        """A one-line error where the clouds (B, N, 3) are not of the size it was fitted on."""
         given = np.shape(points_body)[1]
-        if given != (self.thinned_from or self.num_points):
-            raise ValueError(f"this outcome correction was fitted on hull_surface clouds of {self.thinned_from or self.num_points} "
+        if given != self.given_points:
+            raise ValueError(f"this outcome correction was fitted on hull_surface clouds of {self.given_points} "
                              f"points and is given {given}: give it clouds of the size its model reads")
-        return thinned_clouds(points_body, self.num_points if self.thinned_from else 0, hull_counts)
 
     def correction(self, inputs: np.ndarray, clouds: np.ndarray | None = None) -> np.ndarray:
         """Raw inputs (B, 13) -> (B, 3): the displacement along and across the travel (m) and the turn
@@ -164,7 +173,7 @@ class OutcomeCorrection:
         not ``toppled`` (B,). ``lengths`` (B,): each push's own number of steps (default T), for roll-outs
         padded to the longest of a batch: a push is judged at its own end, as it would be alone, and past it
         takes the whole correction. The step-0 velocities stay as given. ``clouds_world`` (B, num_points, 3):
-        the clouds it reads (``body_clouds``) turned to step 0, for PointNets. Returns which rows it corrected (B,)."""
+        the clouds it reads (``thinned_to``) turned to step 0, for PointNets. Returns which rows it corrected (B,)."""
         if self.num_points and clouds_world is None:
             raise ValueError("this outcome correction reads each push's cloud: pass clouds_world")
         p, q = states["com_position"], states["orientation_xyzw"]
@@ -248,18 +257,18 @@ def _rate(fraction: np.ndarray, dt: float) -> np.ndarray:
     return rate
 
 
-def correct_rollout(model: Any, states: dict[str, np.ndarray], v0: np.ndarray, w0: np.ndarray,
-                    spin_inertia: np.ndarray | None, points_world: np.ndarray, toppled: np.ndarray,
-                    lengths: np.ndarray | None = None, clouds_world: np.ndarray | None = None) -> None:
-    """Apply ``model.outcome_correction`` (if any) to a roll-out's ``states`` in place (``OutcomeCorrection.apply``;
-    ``toppled`` (B,): the roll-out's own verdict; ``clouds_world``: what a PointNet correction reads, its
-    ``body_clouds`` turned to step 0), and make its ``delta_*`` (if present) the corrected states' steps."""
-    correction = getattr(model, "outcome_correction", None)
-    if correction is None:
-        return
+def correct_rollout(correction: OutcomeCorrection, dt: float, states: dict[str, np.ndarray], v0: np.ndarray,
+                    w0: np.ndarray, spin_inertia: np.ndarray | None, points_world: np.ndarray, toppled: np.ndarray,
+                    extra: tuple[np.ndarray | None, np.ndarray | None] = (None, None)) -> None:
+    """Apply ``correction`` to a roll-out's ``states`` (one step every ``dt`` s) in place
+    (``OutcomeCorrection.apply``; ``toppled`` (B,): the roll-out's own verdict; ``extra``: (lengths (B,) or None,
+    clouds_world or None: what a PointNet correction reads, its ``thinned_to`` clouds turned to step 0)), and make
+    its ``delta_*`` (if present) the corrected states' steps. spin_inertia (B,) or None: estimated from
+    ``points_world`` (B, N, 3), the clouds in the step-0 frame."""
+    lengths, clouds_world = extra
     spin = cloud_spin_inertia(points_world) if spin_inertia is None else np.asarray(spin_inertia, dtype=np.float64)
     rows = correction.apply(states, np.asarray(v0, dtype=np.float64).reshape(-1, 3),
-                            np.asarray(w0, dtype=np.float64).reshape(-1, 3), spin, float(model.prior_dt), toppled, lengths,
+                            np.asarray(w0, dtype=np.float64).reshape(-1, 3), spin, float(dt), toppled, lengths,
                             clouds_world)
     if rows.any() and "delta_position" in states:
         states["delta_position"][rows] = np.diff(states["com_position"][rows], axis=1)

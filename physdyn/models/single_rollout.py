@@ -245,3 +245,17 @@ class SingleRollout:
             v = [v[0] + d[0], v[1] + d[1], v[2] + d[2]]
             w = [w[0] + d[3], w[1] + d[4], w[2] + d[5]]
         return {"changes": changes[None], "fed": fed[None], "topple_probability": None if topple is None else topple[None]}
+
+
+def single_rollout(model: Any, points: Any, linear_velocity0: Any, angular_velocity0: Any, steps: int, warm_linear: Any = None,
+                   warm_angular: Any = None, spin_inertia: Any = None, topple: bool = True,
+                   warm_turn: Any = None) -> dict[str, torch.Tensor | None]:
+    """``DynamicsNetwork.rollout_changes`` for one object (``SingleRollout.supports(model)``), through that
+    method: the same arguments and results as ``physdyn.models.batch_rollout.batch_rollout``."""
+    feature = model.encode(torch.as_tensor(points, dtype=torch.float32, device=model.device), spin_inertia)
+    as64 = lambda x: None if x is None else np.asarray(torch.as_tensor(x).cpu(), np.float64)  # noqa: E731
+    warm_v, warm_w = as64(warm_linear), as64(warm_angular)
+    out = SingleRollout.of(model).run(feature, as64(linear_velocity0).reshape(3), as64(angular_velocity0).reshape(3),
+                                      steps, None if warm_v is None else warm_v[0], None if warm_w is None else warm_w[0],
+                                      topple, None if warm_turn is None else as64(warm_turn)[0])
+    return {k: None if x is None else torch.from_numpy(x) for k, x in out.items()}

@@ -237,23 +237,6 @@ def topple_timing(stores: list[Any]) -> np.ndarray:
     return timing
 
 
-def given_points(classifier: Any) -> int | None:
-    """The size of the body-frame cloud a topple classifier is given: its own (None: whatever the caller
-    has), or for a PointNet fitted on thinned clouds (``fit-topple --pointnet --num-points``) the size it
-    thins from (``body_clouds``)."""
-    return getattr(classifier, "thinned_from", 0) or classifier.num_points
-
-
-def topple_classifier_from_dict(d: dict[str, Any]) -> Any:
-    """The classifier a checkpoint holds: ``ToppleClassifier``, or ``PointNetToppleClassifier`` (kind "pointnet",
-    `fit-topple --pointnet`)."""
-    if d.get("kind") == "pointnet":
-        from physdyn.models.topple_pointnet import PointNetToppleClassifier  # torch networks: only where used
-
-        return PointNetToppleClassifier.from_dict(d)
-    return ToppleClassifier.from_dict(d)
-
-
 def logistic_regression(x: np.ndarray, y: np.ndarray, ridge: float = 1e-3, iterations: int = 50) -> tuple[np.ndarray, float]:
     """Newton's method on the mean log-loss + ridge/2 |w|^2 (bias not penalised); x standardised."""
     n, f = x.shape

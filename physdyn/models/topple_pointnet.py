@@ -12,7 +12,7 @@ lowest one, and seven scalars: the step-0 velocity and spin in that frame and I_
 A PointNet (4 -> 64 -> 128 -> width per point by default, max-pooled) and a head of two hidden layers give the logit;
 the probability is the mean of the networks' (an ensemble of seeds). Per step, the probability of having
 toppled by step t is P(topples) x F(t), as ``ToppleClassifier``'s. Fitted with ``--num-points``, it reads
-each cloud thinned to that size, its hull vertices first (``body_clouds``), wherever it runs.
+each cloud thinned to that size, its hull vertices first (``thinned_to``), wherever it runs.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ PUSHES_PER_PASS = 32  # pushes per forward pass at prediction (``_in_passes``; `
 # the cheaper (0.09 against 0.10-0.23 ms; `python benchmarks/frontier.py`, docs/performance.md)
 NUMPY_PUSHES = 8
 POINT_WIDTHS = (64, 128)  # the per-point layers' widths before the last (of ``width``): the per-push cost
-THINNED_KEPT = 256  # thinned clouds the process keeps, the latest (``thinned_clouds``)
+THINNED_KEPT = 256  # thinned clouds a cache keeps, the latest (``thinned_clouds``)
 INERTIA_SHAPE_FACTOR = 0.8  # I_zz / m from a bare cloud: 0.8 x its mean squared horizontal radius (the contact prior's)
 
 
@@ -109,14 +109,12 @@ def numpy_forward(layers: tuple[list, list], cloud: np.ndarray, scalars: np.ndar
     return h
 
 
-_THINNED: dict[tuple, np.ndarray] = {}  # (count, body-frame cloud, its hull count) -> its thinned cloud, the latest
-
-
-def thinned_clouds(points_body: np.ndarray, count: int, hull_counts: Any = None) -> np.ndarray:
+def thinned_clouds(points_body: np.ndarray, count: int, hull_counts: Any = None,
+                   kept: dict[tuple, np.ndarray] | None = None) -> np.ndarray:
     """(B, count, 3) float32: each body-frame cloud of (B, N, 3) thinned by ``thin_hull_surface``, each distinct
-    cloud once in the process: a batch of one object's pushes repeats one cloud hundreds of times, and the
-    topple PointNet and a PointNet outcome correction that thin alike read one thinning (the latest
-    THINNED_KEPT kept; ``forget_thinned``). As given where ``count`` is 0 or not below N. ``hull_counts`` (B,):
+    cloud once: a batch of one object's pushes repeats one cloud hundreds of times. ``kept``: thinned clouds by
+    (count, cloud, hull count), read and filled (the latest THINNED_KEPT; a predictor's
+    ``physdyn.pipeline.stages.BodyCache``). As given where ``count`` is 0 or not below N. ``hull_counts`` (B,):
     how many of each cloud's first points are its mesh's hull vertices, where the caller knows (a prediction:
     ``PreparedBody.hull_count``); then no qhull runs for it (``thin_hull_surface``)."""
     points_body = np.asarray(points_body, dtype=np.float32)
@@ -124,22 +122,17 @@ def thinned_clouds(points_body: np.ndarray, count: int, hull_counts: Any = None)
         return points_body
     from physdyn.geometry.sampling import thin_hull_surface
 
+    kept = {} if kept is None else kept
     out = np.empty((len(points_body), count, 3), dtype=np.float32)
     for b, cloud in enumerate(points_body):
         hull_count = None if hull_counts is None else int(hull_counts[b])
         key = (count, cloud.tobytes(), hull_count)
-        if key not in _THINNED:
-            if len(_THINNED) >= THINNED_KEPT:
-                _THINNED.pop(next(iter(_THINNED)))  # the oldest
-            _THINNED[key] = thin_hull_surface(cloud, count, hull_count)
-        out[b] = _THINNED[key]
+        if key not in kept:
+            if len(kept) >= THINNED_KEPT:
+                kept.pop(next(iter(kept)))  # the oldest
+            kept[key] = thin_hull_surface(cloud, count, hull_count)
+        out[b] = kept[key]
     return out
-
-
-def forget_thinned() -> None:
-    """Drop every thinned cloud kept (``thinned_clouds``): a benchmark of meshes new to physdyn must pay for
-    thinning theirs (``Predictor.forget_meshes``)."""
-    _THINNED.clear()
 
 
 def travel_turn(linear_velocity: np.ndarray) -> np.ndarray:
@@ -179,8 +172,8 @@ class PointNetToppleClassifier:
     num_points: int = 256
     points_method: str = POINTS_METHOD
     point_widths: tuple[int, ...] = POINT_WIDTHS
-    thinned_from: int = 0  # > 0: it reads hull_surface clouds of this size thinned to num_points (``body_clouds``)
-    physics: bool = False  # it simulates nothing (Predictor.without_simulator keeps it)
+    thinned_from: int = 0  # > 0: it reads hull_surface clouds of this size thinned to num_points (``thinned_to``)
+    physics: bool = False  # it simulates nothing (Pipeline.without_simulator keeps it)
     _modules: list[ToppleNet] = field(default_factory=list, repr=False, compare=False)
     _layers: list[tuple[list, list]] = field(default_factory=list, repr=False, compare=False)
 
@@ -208,14 +201,13 @@ class PointNetToppleClassifier:
             return np.mean([torch.sigmoid(_in_passes(net, cloud, scalars)).numpy() for net in self._modules],
                            axis=0).astype(np.float64)
 
-    def body_clouds(self, points_body: np.ndarray, hull_counts: Any = None) -> np.ndarray:
-        """The clouds it reads (B, num_points, 3) from those it is given (B, N, 3), body frame: each thinned by
-        ``thin_hull_surface`` when the classifier was fitted on thinned ones (``fit-topple --pointnet
-        --num-points``; given its ``thinned_from``-point clouds), else as they are. Thinned before a push
-        turns them (from the body frame's lowest hull vertex, as its training clouds were), each distinct
-        cloud once: a batch of one object's pushes repeats one cloud hundreds of times. ``hull_counts``: as for
-        ``thinned_clouds``."""
-        return thinned_clouds(points_body, self.num_points if self.thinned_from else 0, hull_counts)
+    @property
+    def thinned_to(self) -> int:
+        """The size it thins the clouds it is given to (0: it reads them as they are). Fitted on thinned
+        clouds (``fit-topple --pointnet --num-points``), it is given ``thinned_from``-point ones and thins them
+        by ``thin_hull_surface`` before a push turns them (from the body frame's lowest hull vertex, as its
+        training clouds were): ``thinned_clouds``."""
+        return self.num_points if self.thinned_from else 0
 
     def per_step(self, probability: np.ndarray, steps: int) -> np.ndarray:
         """(B,) -> (B, steps + 1): the probability of having toppled by step t (0 at step 0)."""
@@ -345,7 +337,7 @@ def fit_pointnet_topple(stores: list[Any], seeds: tuple[int, ...] = (0,), steps:
                         progress: Callable[[int, int, float], None] | None = None) -> tuple[PointNetToppleClassifier, dict[str, Any]]:
     """One network per seed on the stores' training splits, each chosen on their validation splits, as one
     classifier. ``num_points`` below the stores' cloud size: the networks read each cloud thinned to it
-    (``thin_hull_surface``), and so does the classifier at prediction (``body_clouds``): the per-point
+    (``thin_hull_surface``), and so does the classifier at prediction (``thinned_to``): the per-point
     layers' cost a push is proportional to it. Returns the classifier and a report (validation accuracy of
     each network and of the ensemble, counts)."""
     data = store_training_set(stores)
@@ -378,7 +370,7 @@ def stores_first_frames(stores: list[Any], split: int | None = None,
                         clouds: list[np.ndarray] | None = None) -> dict[str, np.ndarray]:
     """The pushes' clouds turned to their step-0 orientation (P, N, 3), step-0 velocities, I_zz / m: every
     push of the stores in order, or those of one ``split``. ``clouds``: per store, the body-frame clouds
-    (S, N', 3) a classifier reads in place of its own (thinned ones: ``body_clouds``)."""
+    (S, N', 3) a classifier reads in place of its own (thinned ones: ``thinned_to``)."""
     from physdyn.data.windows import store_spin_inertia, world_oriented_points
 
     out: dict[str, list[np.ndarray]] = {"points": [], "v0": [], "w0": [], "spin": []}

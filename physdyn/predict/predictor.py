@@ -13,33 +13,24 @@ Arrays in a result are float64 numpy arrays: T = round(seconds * rate_hz) + 1 st
 
 from __future__ import annotations
 
-import copy
-import dataclasses
 import math
 import os
 import warnings
-from collections import OrderedDict
-from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 import torch
 
-from physdyn.config import PRESETS, ExperimentConfig, PhysicsConfig, load_config
-from physdyn.data.normalization import Normalization
 from physdyn.errors import PhysdynError, PredictionError, PredictionWarning
-from physdyn.eval.baselines import load_checkpoint
-from physdyn.eval.rollout import rollout, sim_steps
+from physdyn.eval.rollout import RolloutOptions, as_pipeline, prepared_batch
 from physdyn.geometry.mass import vertical_inertia, world_inertia_per_mass
 from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_rotvec
 from physdyn.models.checkpoint_file import SHIPPED
-from physdyn.models.dynamics_network import DynamicsNetwork
-from physdyn.models.experiment_checks import check_experiment_config
-from physdyn.models.topple_classifier import given_points
-from physdyn.models.topple_pointnet import forget_thinned
+from physdyn.pipeline.engine import Pipeline, run_stages
+from physdyn.pipeline.presets import build_pipeline, load_pipeline, preset_file, read_preset
+from physdyn.pipeline.stages import BodyCache
 from physdyn.predict.body import PreparedBody, preparation_key, prepare_body
 from physdyn.predict.simulator import SIMULATOR_NAME, simulate_from_state
-from physdyn.sim.cloud_body import forget_clouds
 from physdyn.sim.trajectory import resting_com_positions
 
 BUNDLED_CHECKPOINT = SHIPPED["bundled"]
@@ -47,7 +38,6 @@ BUNDLED_CHECKPOINT = SHIPPED["bundled"]
 # (docs/performance.md); "bundled", which simulates inside each prediction, is dominated by PyBullet at 1/240 s.
 DEFAULT_MODEL = "fast"
 DEFAULT_CHECKPOINT = SHIPPED[DEFAULT_MODEL]
-DEFAULT_NUM_POINTS = 1024
 MAX_LINEAR_SPEED = 50.0  # m/s; training pushes are 0.5-2 m/s
 MAX_ANGULAR_SPEED = 500.0  # rad/s
 MAX_SECONDS = 600.0  # a pushed object rests within seconds; far longer only allocates
@@ -169,38 +159,36 @@ def _short(value: Any) -> str:
 # The predictor
 # --------------------------------------------------------------------------------------------------
 class Predictor:
-    """A trained ``DynamicsNetwork`` ready to predict users' meshes.
+    """A pipeline of stages (``physdyn.pipeline``) ready to predict users' meshes.
 
-    model: a ``DynamicsNetwork``; name: what the ``checkpoint`` key of a result says (a path or a name);
-    physics: the ``PhysicsConfig`` of ``compare_sim`` runs (default: the conventions' defaults).
+    model: a ``Pipeline`` (``load_pipeline``), or a bare ``DynamicsNetwork`` (rolled out as ``as_pipeline``
+    makes it); name: what the ``checkpoint`` key of a result says (a preset, a path or a name); physics: the
+    ``PhysicsConfig`` of ``compare_sim`` runs (default: the conventions' defaults).
     """
 
     def __init__(self, model: Any, name: str = "model", physics: Any = None, device: str = "cpu"):
-        self.model = model.to(resolve_device(device)) if hasattr(model, "to") else model
+        self.model: Pipeline = as_pipeline(model).to(resolve_device(device))
         self.name = str(name)
         self.physics = physics
-        # preparation_key -> PreparedBody, least recently used first: a new mesh costs milliseconds to
-        # prepare, a mesh seen before only a digest of its arrays.
-        self._prepared: OrderedDict[tuple, PreparedBody] = OrderedDict()
-        self._fast: Predictor | None = None  # without_simulator(), made once
-        self._contact_prior: Predictor | None = None  # contact_prior(), made once
-        # Set by the planner once this predictor has rolled out in this process (its one-off set-up paid).
-        self.warmed_up = False
+        # The bodies this predictor has seen: prepared meshes (by preparation_key, least recently used first:
+        # a new mesh costs milliseconds to prepare, a mesh seen before only a digest of its arrays) and the
+        # thinned clouds its PointNets read.
+        self._prepared = BodyCache()
 
     @property
     def rate_hz(self) -> float:
         """The rate of the predicted trajectory (Hz): the rate of the store the model was trained on."""
-        return float(self.model.data_info.get("rate_hz") or 15.0)
+        return self.model.rate_hz
 
     @property
     def num_points(self) -> int:
         """How many surface points the model reads from a mesh's cloud."""
-        return int(getattr(self.model, "num_points", None) or self.model.data_info.get("num_points") or DEFAULT_NUM_POINTS)
+        return self.model.num_points
 
     @property
     def points_method(self) -> str:
         """The point representation the model was trained on (its store's ``points_method``)."""
-        return str(self.model.data_info.get("points_method") or "surface")
+        return self.model.points_method
 
     def num_steps(self, seconds: float) -> int:
         """T = round(seconds * rate_hz) + 1 (step 0 included)."""
@@ -261,14 +249,9 @@ class Predictor:
         hulls = None
         if self.points_method == "hull_surface":
             hulls = np.array([body.hull_count(self.num_points) for body in bodies])
-        classifier = getattr(self.model, "topple_classifier", None)
-        dense = None if classifier is None else given_points(classifier)  # the cloud its simulations read
-        method = getattr(classifier, "points_method", "surface")  # a PointNet classifier reads hull_surface
-        size = dense or DEFAULT_NUM_POINTS
-        # None where nothing reads it, or where it is the model's own cloud (`fast`: one cloud for all, thinned once)
-        topple_points = None if (classifier is None and not sim_steps(self.model)) or (
-            size == self.num_points and method == self.points_method) else np.stack(
-            [body.points_body(size, method) for body in bodies])
+        # None where no stage reads another cloud, or where it is the motion's own (`fast`: one cloud for all)
+        spec = self.model.stage_cloud()
+        topple_points = None if spec is None else np.stack([body.points_body(spec.count, spec.method) for body in bodies])
         results: list[dict[str, Any] | None] = [None] * R
         # Longest first, then one roll-out per chunk at the chunk's longest length: a roll-out is causal (each
         # step reads only earlier ones), so a shorter request's steps are exactly its own roll-out's and the
@@ -277,11 +260,12 @@ class Predictor:
         for lo in range(0, R, int(chunk_size)):
             idx = order[lo : lo + int(chunk_size)]
             longest = max(steps[r] for r in idx)
-            rolled = rollout(self.model, points[idx], q0[idx], p0[idx], v0[idx], w0[idx], longest - 1,
-                             topple_points_body=None if topple_points is None else topple_points[idx],
-                             spin_inertia=spin_inertia[idx], body_inertia=body_inertia[idx],
-                             lengths=np.array([steps[r] for r in idx]), with_changes=False,
-                             hull_counts=None if hulls is None else hulls[idx])
+            options = RolloutOptions(topple_points_body=None if topple_points is None else topple_points[idx],
+                                     spin_inertia=spin_inertia[idx], body_inertia=body_inertia[idx],
+                                     lengths=np.array([steps[r] for r in idx]), with_changes=False,
+                                     hull_counts=None if hulls is None else hulls[idx])
+            batch = prepared_batch(points[idx], (q0[idx], p0[idx], v0[idx], w0[idx]), longest - 1, options, self._prepared)
+            rolled = run_stages(self.model, batch)
             for b, r in enumerate(idx):
                 T = steps[r]
                 out = {k: None if v is None else v[:T] for k, v in rolled.sequence(b).items()}
@@ -295,82 +279,10 @@ class Predictor:
         return results  # type: ignore[return-value]
 
     def forget_meshes(self) -> None:
-        """Forget every mesh prepared so far (this predictor's preparations, the process's cloud bodies and
-        thinned clouds), so the next request pays for its preparation as a new mesh does (benchmarks/frontier.py)."""
-        self._prepared.clear()
-        forget_clouds()
-        forget_thinned()
-
-    def without_simulator(self) -> "Predictor":
-        """This predictor's networks with nothing simulated at inference: no simulated start
-        (``model.sim_seconds`` = 0) and no topple classifier that simulates (``fit-topple --physics``;
-        toppling then comes from the head, or the 45 degree rule on the predicted poses). The weights and
-        the prepared meshes are shared; this predictor itself is returned when it simulates nothing. The
-        planner screens candidates with it (docs/plan.md)."""
-        model = self.model
-        classifier = getattr(model, "topple_classifier", None)
-        simulating_classifier = classifier is not None and bool(getattr(classifier, "physics", False))
-        if not sim_steps(model) and not simulating_classifier:
-            return self
-        if self._fast is not None:
-            return self._fast
-        # A shallow copy: the same modules and weights, its own settings. Only plain attributes are replaced on
-        # it; its saved hyper-parameters still describe the original, so it is for roll-outs, never for saving.
-        fast = copy.copy(model)
-        fast.config = dataclasses.replace(model.config, model=dataclasses.replace(model.config.model, sim_seconds=0.0))
-        if simulating_classifier:
-            fast.topple_classifier = None
-        self._fast = self._sibling(fast, f"{self.name} without simulator")
-        return self._fast
-
-    def contact_prior(self) -> "Predictor":
-        """The contact prior alone (``contact_prior_predictor``) at this predictor's rate and physics, sharing its
-        prepared meshes; made once. The planner screens candidates with it (docs/plan.md)."""
-        if self._contact_prior is None:
-            prior = contact_prior_predictor(self.physics, self.rate_hz)
-            self._contact_prior = self._sibling(prior.model, prior.name)
-        return self._contact_prior
-
-    def _sibling(self, model: Any, name: str) -> "Predictor":
-        """Another predictor of ``model`` with this one's physics and prepared meshes. Not through ``__init__``:
-        a model sharing this one's modules stays on their device."""
-        out = Predictor.__new__(Predictor)
-        out.model, out.name, out.physics, out._prepared = model, name, self.physics, self._prepared
-        out._fast = out._contact_prior = None
-        out.warmed_up = False
-        return out
-
-    def plan(self, mesh: Any, goal_xy: Any, goal_yaw: Any = None, upright: bool = False, budget_s: float = 1.0,
-             scale: float = 1.0, orientation_xyzw: Any = None, seed: int = 0, speed_min: float | None = None,
-             speed_max: float | None = None, height_fraction: float | None = None, lateral_fraction: float | None = None,
-             verify: bool = False, search: str = "screened", pybullet_step: float = 1.0 / 240.0, screen: Any = "prior",
-             check: bool = True) -> dict[str, Any]:
-        """The push that moves ``mesh`` (placed as ``predict`` places it) by ``goal_xy`` (2,) m on the plane,
-        turned by ``goal_yaw`` degrees about the vertical (counter-clockwise from above positive; None: any
-        turn), not toppled if ``upright``: a cross-entropy search over the push point (height band, sideways
-        offset), direction and speed, each round's candidates rolled out as one batch, for ``budget_s``
-        seconds of wall clock (``planner.py``). Bounds default to the training pushes' (``ImpulseConfig``).
-        A goal not met within the budget is still answered: the best push and its predicted miss.
-
-        ``search``: "screened" (default: each round the contact prior, ``screen="prior"``, or this
-        predictor's networks without simulator, ``screen="model"``, rolls out 16 times as many candidates as
-        PyBullet at ``pybullet_step`` on the mesh's hull, which ranks the most promising), "model" (this
-        predictor's model alone) or "pybullet" (PyBullet at ``pybullet_step`` alone). ``check``: the last
-        fifth of the budget rolls the 8 best candidates out again at the conventions' step, and the best by
-        that check is the answer (``answered_by``). Why these defaults: docs/plan.md, Benchmark.
-
-        Returns ``lin_vel``, ``ang_vel`` (3,) world frame (what ``predict`` takes), ``push_point``,
-        ``push_direction``, ``push_speed``, ``push_impulse``, ``predicted`` (the answering model's trajectory,
-        final pose, ``miss_m``, ``miss_yaw_deg``, ``met``), ``goal``, ``budget_s``, ``elapsed_s``,
-        ``candidates``, ``screened``, ``checked``, ``rounds`` and the inputs (docs/plan.md); ``verify=True``
-        adds ``verified``: PyBullet at the conventions' step on the mesh until at rest, a check the search
-        never sees. Bad goals (not finite, beyond the speed bounds' reach), budgets and search settings raise
-        ``PredictionError``.
-        """
-        from physdyn.predict.planner import plan_push  # the planner builds on this class's roll-outs
-
-        return plan_push(self, mesh, goal_xy, goal_yaw, upright, budget_s, scale, orientation_xyzw, seed, speed_min,
-                         speed_max, height_fraction, lateral_fraction, verify, search, pybullet_step, screen, check)
+        """Forget every mesh prepared so far (this predictor's body cache: preparations, thinned clouds, the
+        simulator's hull shapes), so the next request pays for its preparation as a new mesh does
+        (benchmarks/frontier.py)."""
+        self._prepared.forget()
 
     def _bodies(self, meshes: list, scales: list) -> list[PreparedBody]:
         """Each request's ``PreparedBody``. A mesh this predictor prepared before, in this call or an
@@ -385,15 +297,16 @@ class Predictor:
             if (id(mesh), scale) not in keys:
                 keys[id(mesh), scale] = None if isinstance(mesh, PreparedBody) else preparation_key(mesh, scale)
             key = keys[id(mesh), scale]
-            body = self._prepared.get(key) if key is not None else None
+            prepared = self._prepared.meshes
+            body = prepared.get(key) if key is not None else None
             if body is None:
                 body = prepare_body(mesh, float(scale))
                 if key is not None:
-                    self._prepared[key] = body
-                    if len(self._prepared) > PREPARED_CACHE_SIZE:
-                        self._prepared.popitem(last=False)  # the least recently used
+                    prepared[key] = body
+                    if len(prepared) > PREPARED_CACHE_SIZE:
+                        prepared.popitem(last=False)  # the least recently used
             else:
-                self._prepared.move_to_end(key)
+                prepared.move_to_end(key)
             if id(body) not in noted:
                 noted.add(id(body))
                 for note in body.notes:
@@ -435,37 +348,36 @@ def resolve_device(device: str) -> str:
 
 
 def contact_prior_predictor(physics: Any = None, rate_hz: float = 15.0, num_points: int = 256) -> Predictor:
-    """The contact prior alone as a ``Predictor`` (``configs/experiment/contact_prior.yaml``: no network, nothing
+    """The ``contact_prior`` preset as a ``Predictor`` (configs/predictor/contact_prior.yaml: no network, nothing
     learned, never topples): Coulomb friction integrated over the footprint of the mesh's ``hull_surface``
-    cloud with the body's own spin inertia, at the friction of ``physics`` (default: the conventions'). About
-    0.1 ms a trajectory in a batch of one mesh's pushes; the planner screens candidates with it."""
-    physics = physics or PhysicsConfig()
-    # the shipped preset, checked as training checks it but for the trainer's keys (those need Lightning's)
-    cfg = check_experiment_config(load_config(ExperimentConfig, PRESETS / "experiment" / "contact_prior.yaml"))
-    info = {"rate_hz": float(rate_hz), "num_points": int(num_points), "points_method": "hull_surface",
-            "friction": physics.lateral_friction_object * physics.lateral_friction_ground, "gravity": abs(physics.gravity)}
-    model = DynamicsNetwork(cfg, Normalization(mode="std_inputs", input_mean=(0.0,) * 6, input_std=(1.0,) * 6), info)
-    model.eval()
-    return Predictor(model, name="contact prior", physics=physics)
+    cloud of ``num_points`` with the body's own spin inertia, at ``rate_hz`` and the friction of ``physics``
+    (default: the conventions'). About 0.1 ms a trajectory in a batch of one mesh's pushes; the planner
+    screens candidates with it."""
+    preset = read_preset(preset_file("contact_prior"))
+    preset.motion.params.update(rate_hz=float(rate_hz), num_points=int(num_points))
+    return Predictor(build_pipeline(preset, physics), name="contact prior", physics=physics)
 
 
 def load_predictor(checkpoint: Any = None, physics: Any = None, device: str = "cpu") -> Predictor:
-    """A ``Predictor`` from a `physdyn fit` checkpoint path, a loaded ``DynamicsNetwork``, a shipped model's
-    name ("fast": nothing simulated, docs/model-card.md; "bundled": a simulated start and a topple roll-out
-    in PyBullet), or (None) the default, the shipped ``fast`` model, on ``device`` (cpu, cuda or auto). Raises a
-    one-line ``PhysdynError`` for anything else."""
+    """A ``Predictor`` from a shipped preset's name ("fast": nothing simulated, docs/model-card.md; "bundled":
+    a simulated start and a topple roll-out in PyBullet; "contact_prior"), a preset file (.yaml), a checkpoint
+    of `physdyn fit` (a path, with what `fit-topple` and `fit-outcome` added), a ``Pipeline`` or a loaded
+    ``DynamicsNetwork``, or (None) the default, the shipped ``fast`` model, on ``device`` (cpu, cuda or auto).
+    All but the last two through one factory (``physdyn.pipeline.presets.load_pipeline``). Raises a one-line
+    ``PhysdynError`` for anything else."""
 
     if checkpoint is None:
         # the shipped file itself: a file named "fast" where the caller runs is theirs to name, not the default
         if not DEFAULT_CHECKPOINT.is_file():
             raise PhysdynError(f"no shipped model in this installation ({DEFAULT_CHECKPOINT} is missing); "
                                "pass a checkpoint of `physdyn fit` with --checkpoint CKPT (load_predictor(path))")
-        return Predictor(load_checkpoint(DEFAULT_CHECKPOINT), name=DEFAULT_MODEL, physics=physics, device=device)
-    if hasattr(checkpoint, "encode_points") and hasattr(checkpoint, "step"):
-        return Predictor(checkpoint, name="model", physics=physics, device=device)
+        return Predictor(load_pipeline(preset_file(DEFAULT_MODEL), physics), name=DEFAULT_MODEL, physics=physics,
+                         device=device)
+    if isinstance(checkpoint, Pipeline) or (hasattr(checkpoint, "encode_points") and hasattr(checkpoint, "step")):
+        return Predictor(checkpoint, name=getattr(checkpoint, "name", "model"), physics=physics, device=device)
     if not isinstance(checkpoint, (str, os.PathLike)):
-        raise PhysdynError(f"checkpoint must be a path or a DynamicsNetwork, got {type(checkpoint).__name__}")
-    return Predictor(load_checkpoint(checkpoint), name=str(checkpoint), physics=physics, device=device)
+        raise PhysdynError(f"checkpoint must be a path, a preset's name or a DynamicsNetwork, got {type(checkpoint).__name__}")
+    return Predictor(load_pipeline(checkpoint, physics), name=str(checkpoint), physics=physics, device=device)
 
 
 def summary(result: dict[str, Any]) -> str:

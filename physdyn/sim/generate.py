@@ -27,6 +27,7 @@ from physdyn.geometry.mass import exact_mass_properties
 from physdyn.geometry.poses import stable_orientations
 from physdyn.registry import SHAPE_FAMILIES
 from physdyn.sim.body import rigid_body
+from physdyn.sim.ensemble import EnsemblePlan, PushMembers, simulate_members
 from physdyn.sim.impulse import sample_initial_condition
 from physdyn.sim.trajectory import InitialCondition, Trajectory, simulate, steps_per_frame
 from physdyn.sim.world import PhysicsWorld
@@ -78,11 +79,14 @@ class SimulatedPush:
 @dataclass
 class SimulatedBlock:
     """One block's records, in task order. skipped: unusable shapes ({family, index, reason});
-    notes: warnings met while preparing the meshes."""
+    notes: warnings met while preparing the meshes; members: each push's ensemble (in push order) when the
+    config has one, as ``ensemble`` plans it."""
 
     block_id: int
     shapes: list[SimulatedShape] = field(default_factory=list)
     pushes: list[SimulatedPush] = field(default_factory=list)
+    ensemble: EnsemblePlan | None = None
+    members: list[PushMembers] = field(default_factory=list)
     skipped: list[dict] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
 
@@ -125,6 +129,9 @@ def validate(cfg: DataConfig) -> None:
         raise ConfigError("split fractions must be in [0, 1)")
     if cfg.num_points < 1 or cfg.oversample < 1 or cfg.shapes_per_block < 1:
         raise ConfigError("num_points, oversample and shapes_per_block must be >= 1")
+    if cfg.ensemble.members < 0:
+        raise ConfigError("ensemble.members must be >= 0 (0: no ensemble)")
+    cfg.ensemble.uncertainty_config()  # a bad uncertainty: one line naming the key, before anything runs
 
 
 def plan(cfg: DataConfig) -> tuple[list[list[ShapeTask]], list[str]]:
@@ -156,6 +163,12 @@ def shape_seed(cfg: DataConfig, task: ShapeTask) -> np.random.SeedSequence:
 def task_streams(cfg: DataConfig, task: ShapeTask) -> list[np.random.SeedSequence]:
     """The task's three random streams: the shape, its simulations, its point cloud (in that order)."""
     return shape_seed(cfg, task).spawn(3)
+
+
+def ensemble_streams(cfg: DataConfig, task: ShapeTask) -> list[np.random.SeedSequence]:
+    """The task's fourth stream, one child per push: its ensemble's perturbations. ``task_streams``'s three
+    are unchanged by it, so a store's pushes are the same with or without an ensemble."""
+    return shape_seed(cfg, task).spawn(4)[3].spawn(cfg.families[task.family].sims_per_shape)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -197,7 +210,8 @@ def run_block(cfg: DataConfig, block_id: int, tasks: list[ShapeTask]) -> Simulat
 
     state = _worker_state(cfg)
     world = state["world"]
-    block = SimulatedBlock(block_id)
+    ensemble = EnsemblePlan.from_config(cfg)
+    block = SimulatedBlock(block_id, ensemble=ensemble)
     for task in tasks:
         family = state["families"].get(task.family) or build_family(cfg, task.family)
         state["families"][task.family] = family
@@ -212,12 +226,17 @@ def run_block(cfg: DataConfig, block_id: int, tasks: list[ShapeTask]) -> Simulat
         block.notes += shape["notes"]
         body = world.add_body(shape["spec"])
         try:
+            first = len(block.pushes)
             for _ in range(cfg.families[task.family].sims_per_shape):
                 init, drawn = sample_initial_condition(
                     shape["sims_rng"], world, body, shape["spec"], shape["rotations"], shape["probabilities"], cfg
                 )
                 traj = simulate(world, body, shape["spec"], init, cfg.rate_hz)
                 block.pushes.append(SimulatedPush(len(block.shapes), init, drawn["speed"], drawn["pose_index"], traj))
+            if ensemble is not None:  # after the shape's pushes, which are then those of a store without one
+                for push, stream in zip(block.pushes[first:], ensemble_streams(cfg, task)):
+                    block.members.append(simulate_members(world, body, shape["spec"], push.trajectory,
+                                                          push.init.friction, ensemble, np.random.default_rng(stream)))
         finally:
             world.remove_body(body)
         block.shapes.append(_shape_record(shape))

@@ -160,3 +160,32 @@ def simulate(world: PhysicsWorld, body: int, spec: RigidBodySpec, init: InitialC
                           physicsClientId=world.client)
     world.step(1)
     return record(world, body, spec, rate_hz)
+
+
+def record_from_state(world: PhysicsWorld, body: int, spec: RigidBodySpec, orientation_xyzw: np.ndarray,
+                      lin_vel: np.ndarray, ang_vel: np.ndarray, rate_hz: float, num_steps: int) -> dict[str, np.ndarray]:
+    """The body from the state right after a push: at rest in ``orientation_xyzw`` (mesh frame), centre of mass
+    above the origin, given the velocities directly (no impulse; friction as the body has it), recorded at
+    ``rate_hz`` for ``num_steps`` steps. Once the body has been at rest for ``physics.rest_duration`` the rest
+    is padded with the resting pose and zero velocities.
+
+    Returns ``com_position`` (T, 3), ``orientation_xyzw`` (T, 4) of the mesh frame, ``linear_velocity``
+    (T, 3), ``angular_velocity`` (T, 3), ``topple_label`` (T,) bool (the 45 degree rule).
+    """
+    place_at_rest(world, body, spec, orientation_xyzw)
+    pb.resetBaseVelocity(body, list(map(float, lin_vel)), list(map(float, ang_vel)), physicsClientId=world.client)
+    traj = record(world, body, spec, rate_hz, max_frames=num_steps)
+    out = {
+        "com_position": traj.com_position,
+        "orientation_xyzw": traj.orientation_xyzw,
+        "linear_velocity": traj.linear_velocity,
+        "angular_velocity": traj.angular_velocity,
+    }
+    pad = num_steps - len(traj)
+    if pad > 0:
+        for key in ("com_position", "orientation_xyzw"):
+            out[key] = np.concatenate([out[key], np.repeat(out[key][-1:], pad, axis=0)])
+        for key in ("linear_velocity", "angular_velocity"):
+            out[key] = np.concatenate([out[key], np.zeros((pad, 3))])
+    out["topple_label"] = topple_labels(out["orientation_xyzw"])[0]
+    return out

@@ -1,2 +1,3 @@
 """Looking at motion: the interactive viewer page (``viewer``), its scenes of a store's sequences
-(``store_scenes``) and GIF/MP4 animations (``render``)."""
+(``store_scenes``), GIF/MP4 animations (``render``), and the mesh both draw, cut to a face budget
+(``meshes``)."""

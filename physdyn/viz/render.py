@@ -11,14 +11,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import trimesh
 from PIL import Image
 
 from physdyn.errors import PhysdynError
 from physdyn.files import atomic_output
-from physdyn.geometry.mesh_io import load_mesh
 from physdyn.geometry.rotations import quat_to_matrix
 from physdyn.predict.prediction_files import check_output_path
+from physdyn.viz.meshes import decimate, mesh_to_draw
+from physdyn.viz.viewer import scene_from_prediction, write_viewer
 
 MAX_FACES = 500
 ANIMATION_EXTENSIONS = (".gif", ".mp4")
@@ -45,37 +45,6 @@ def check_animation_path(path: str | Path, overwrite: bool = False) -> Path:
     if path.suffix.lower() == ".mp4" and not ffmpeg_available():
         raise RenderError(f"animation {path}: MP4 needs ffmpeg, which is not installed; write a .gif instead or install ffmpeg")
     return path
-
-
-def decimate(vertices: np.ndarray, faces: np.ndarray, max_faces: int = MAX_FACES) -> tuple[np.ndarray, np.ndarray]:
-    """(V, 3), (F, 3) -> a mesh of at most ``max_faces`` faces (quadric decimation; a face subset if that fails)."""
-    if len(faces) <= max_faces:
-        return vertices, faces
-    try:
-        import open3d as o3d  # heavy (~1.2 s): only for decimating large meshes
-
-        m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.asarray(vertices, np.float64)),
-                                      o3d.utility.Vector3iVector(np.asarray(faces, np.int32)))
-        small = m.simplify_quadric_decimation(target_number_of_triangles=max_faces)
-        v, f = np.asarray(small.vertices), np.asarray(small.triangles)
-        if 0 < len(f) <= max_faces:
-            return v, f
-    except Exception:  # an odd mesh can defeat the decimator; a face subset still shows the object
-        pass
-    keep = np.linspace(0, len(faces) - 1, max_faces).astype(int)
-    return vertices, faces[keep]
-
-
-def _load(mesh: Any, scale: float):
-    if isinstance(mesh, trimesh.Trimesh):
-        m = mesh.copy()
-        if scale != 1.0:
-            m.apply_scale(scale)
-        return m
-    if hasattr(mesh, "mesh") and hasattr(mesh, "spec"):  # a PreparedBody
-        return mesh.mesh
-
-    return load_mesh(mesh, scale)
 
 
 def _posed(vertices: np.ndarray, com_mesh: np.ndarray, q_xyzw: np.ndarray, com_position: np.ndarray) -> np.ndarray:
@@ -109,14 +78,12 @@ def render_animation(mesh: Any, result: dict[str, Any], path: str | Path, fps: f
 
     path = check_animation_path(path, overwrite)
     if path.suffix.lower() == ".html":
-        from physdyn.viz.viewer import scene_from_prediction, write_viewer  # viewer imports this module
-
-        m = _load(mesh, scale)
+        m = mesh_to_draw(mesh, scale)
         return write_viewer([scene_from_prediction(result, m)], path, title=f"physdyn: {path.stem}", overwrite=overwrite)
     if not np.isfinite(fps) or fps <= 0:
         raise RenderError(f"fps must be a positive number, got {fps}")
-    m = _load(mesh, scale)
-    vertices, faces = decimate(np.asarray(m.vertices, np.float64), np.asarray(m.faces, np.int64))
+    m = mesh_to_draw(mesh, scale)
+    vertices, faces = decimate(np.asarray(m.vertices, np.float64), np.asarray(m.faces, np.int64), MAX_FACES)
     panels = [("prediction", result)]
     if result.get("simulated"):
         panels.append(("simulation", result["simulated"]))

@@ -26,7 +26,7 @@ from plotly.offline import get_plotlyjs
 from physdyn.errors import PhysdynError
 from physdyn.files import atomic_output
 from physdyn.predict.prediction_files import check_output_path
-from physdyn.viz.render import _load, decimate
+from physdyn.viz.meshes import decimate, mesh_to_draw
 
 VIEWER_EXTENSIONS = (".html",)
 MAX_FACES = 800  # per mesh: orbiting stays smooth in software WebGL, shapes stay recognisable
@@ -124,7 +124,7 @@ def scene_from_prediction(result: dict[str, Any], mesh: Any, title: str | None =
     """A scene from a prediction (``Predictor.predict``'s dict or ``read_prediction``'s) and its mesh (a
     path, a ``trimesh.Trimesh`` or a ``PreparedBody``, at the scale it was predicted at)."""
 
-    m = _load(mesh, 1.0)
+    m = mesh_to_draw(mesh, 1.0)
     sim = result.get("simulated")
     name = title or Path(str(result.get("mesh", "prediction"))).name
     return ViewerScene(

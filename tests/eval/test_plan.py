@@ -1,4 +1,4 @@
-"""`physdyn plan` and ``Predictor.plan``: the push mapping against the generator's push, a box's plan toward
+"""`physdyn plan` and ``physdyn.plan.plan_push``: the push mapping against the generator's push, a box's plan toward
 the outcome of a real push checked in PyBullet, the budget, and the command's output."""
 
 import json
@@ -13,10 +13,11 @@ from physdyn.cli import main
 from physdyn.config import PhysicsConfig
 from physdyn.errors import PredictionError
 from physdyn.predict.body import prepare_body
-from physdyn.geometry.rotations import tilt_angle
-from physdyn.predict.planner import turn_about_vertical, wrap_angle
+from physdyn.geometry.rotations import tilt_angle, wrap_angle
+from physdyn.plan import PlanOptions, PushBounds, plan_push
+from physdyn.plan.goal import turn_about_vertical
+from physdyn.plan.push import PushResponse, free_body_velocities
 from physdyn.predict.predictor import load_predictor
-from physdyn.predict.push import PushResponse, free_body_velocities
 from physdyn.predict.simulator import simulate_from_state
 from physdyn.sim.impulse import push_point
 from physdyn.sim.trajectory import InitialCondition, simulate
@@ -101,7 +102,7 @@ def _real_push_goal(body, direction_deg=20.0, speed=1.1):
 
 def test_a_box_plan_toward_a_real_push_outcome_lands_near_it_in_pybullet(predictor, box):
     goal_xy, goal_yaw = _real_push_goal(box)
-    plan = predictor.plan(box, goal_xy, goal_yaw=goal_yaw, upright=True, budget_s=1.5, verify=True, seed=0)
+    plan = plan_push(predictor, box, goal_xy, goal_yaw, upright=True, budget_s=1.5, options=PlanOptions(verify=True, seed=0))
     # the check is PyBullet from the returned velocities, as anyone re-simulating them gets it
     sim = simulate_from_state(box.spec, IDENTITY, plan["lin_vel"], plan["ang_vel"], predictor.rate_hz, 106)
     miss = np.linalg.norm(sim["com_position"][-1, :2] - sim["com_position"][0, :2] - goal_xy)
@@ -118,14 +119,14 @@ def test_a_box_plan_toward_a_real_push_outcome_lands_near_it_in_pybullet(predict
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_box_plan_meets_the_2_cm_15_deg_goal_in_pybullet(predictor, box, seed):
     goal_xy, goal_yaw = _real_push_goal(box, direction_deg=-60.0 + 40 * seed, speed=0.8 + 0.3 * seed)
-    plan = predictor.plan(box, goal_xy, goal_yaw=goal_yaw, upright=True, budget_s=3.0, verify=True, seed=seed)
+    plan = plan_push(predictor, box, goal_xy, goal_yaw, upright=True, budget_s=3.0, options=PlanOptions(verify=True, seed=seed))
     assert plan["verified"]["met"], plan["verified"]["miss_m"]
 
 
 @pytest.mark.parametrize("search, check", [("screened", True), ("model", False), ("pybullet", True)])
 def test_the_budget_is_respected_and_an_unmet_goal_is_still_answered(predictor, box, search, check):
-    plan = predictor.plan(box, [0.2, -0.3], goal_yaw=170, upright=True, budget_s=0.3, search=search,
-                          pybullet_step=1 / 60, check=check)
+    plan = plan_push(predictor, box, [0.2, -0.3], goal_yaw=170, upright=True, budget_s=0.3,
+                     options=PlanOptions(search=search, pybullet_step=1 / 60, check=check))
     assert plan["candidates"] >= 1 and plan["rounds"] == len(plan["round_s"]) >= 1
     # the first round always runs (16 candidates); a later one starts only when its measured cost says it
     # ends within the budget, and so does a checked candidate after the first: the overrun is at most part
@@ -141,7 +142,7 @@ def test_a_screened_plan_is_answered_by_its_check_which_is_what_pybullet_gives(p
     """The default search: the contact prior screens, PyBullet at 1/240 s ranks, and the final check at the
     conventions' step answers, so the plan's predicted miss is the verification's."""
     goal_xy, goal_yaw = _real_push_goal(box, direction_deg=20.0, speed=1.1)
-    plan = predictor.plan(box, goal_xy, goal_yaw=goal_yaw, upright=True, budget_s=1.0, verify=True, seed=3)
+    plan = plan_push(predictor, box, goal_xy, goal_yaw, upright=True, budget_s=1.0, options=PlanOptions(verify=True, seed=3))
     assert plan["search"] == "screened" and plan["screen"] == "contact prior" and plan["model"] == "pybullet@1/240s"
     assert plan["answered_by"] == "pybullet@1/960s" and plan["checked"] >= 1
     assert plan["predicted"]["miss_m"] == pytest.approx(plan["verified"]["miss_m"], abs=2e-3)
@@ -155,7 +156,7 @@ def test_a_screened_plan_is_answered_by_its_check_which_is_what_pybullet_gives(p
 
 
 def test_the_nearest_corrections_carry_the_accurate_models_differences_to_new_candidates():
-    from physdyn.predict.planner import _nearest_corrections
+    from physdyn.plan.search import _nearest_corrections
 
     seen = np.array([[0.1, 0.5, 0.5, 0.5], [0.6, 0.5, 0.5, 0.5]])
     d_xy, d_turn = np.array([[0.01, 0.0], [0.0, -0.02]]), np.array([0.2, 3.1])
@@ -168,18 +169,19 @@ def test_the_nearest_corrections_carry_the_accurate_models_differences_to_new_ca
     assert abs(abs(turn[0]) - math.pi) < 1e-6
 
 
-@pytest.mark.parametrize("kwargs, text", [
-    ({"goal_xy": [0.1, 0], "search": "gradient"}, "search must be one of"),
-    ({"goal_xy": [0.1, 0], "search": "pybullet", "pybullet_step": 0}, "PyBullet step"),
-    ({"goal_xy": [0.1, 0], "screen": "networks"}, "screen must be one of"),
-    ({"goal_xy": [float("nan"), 0]}, "finite"),
-    ({"goal_xy": [3.0, 0]}, "beyond"),
-    ({"goal_xy": [0.1, 0], "budget_s": 0}, "budget"),
-    ({"goal_xy": [0.1, 0], "goal_yaw": float("inf")}, "finite"),
+@pytest.mark.parametrize("kwargs, options, text", [
+    ({"goal_xy": [0.1, 0]}, {"search": "gradient"}, "search must be one of"),
+    ({"goal_xy": [0.1, 0]}, {"search": "pybullet", "pybullet_step": 0}, "PyBullet step"),
+    ({"goal_xy": [0.1, 0]}, {"screen": "networks"}, "screen must be one of"),
+    ({"goal_xy": [0.1, 0]}, {"bounds": PushBounds(speed_min=3, speed_max=1)}, "speed bounds"),
+    ({"goal_xy": [float("nan"), 0]}, {}, "finite"),
+    ({"goal_xy": [3.0, 0]}, {}, "beyond"),
+    ({"goal_xy": [0.1, 0], "budget_s": 0}, {}, "budget"),
+    ({"goal_xy": [0.1, 0], "goal_yaw": float("inf")}, {}, "finite"),
 ])
-def test_the_api_refuses_bad_goals_in_one_line(predictor, box, kwargs, text):
+def test_the_api_refuses_bad_goals_in_one_line(predictor, box, kwargs, options, text):
     with pytest.raises(PredictionError, match=text) as info:
-        predictor.plan(box, **kwargs)
+        plan_push(predictor, box, **kwargs, options=PlanOptions(**options))
     assert "\n" not in str(info.value)
 
 
@@ -206,7 +208,7 @@ def test_pybullet_inside_the_planner_calls_a_topple_as_the_conventions_do(can):
     """A can on its side rolls: its initial up direction passes 45 degrees although it rests as it started
     (a round body). The planner's PyBullet roll-out must call that a topple, as the store's labels and the
     verification do, not judge the last pose alone."""
-    from physdyn.predict.planner import BulletRollout
+    from physdyn.plan.rollouts import BulletRollout
 
     q0 = np.array([math.sin(math.pi / 4), 0, 0, math.cos(math.pi / 4)])
     # its axis lies along world y: rolled along x it turns about a full turn and stops with its initial up
@@ -229,12 +231,14 @@ def test_pybullet_inside_the_planner_calls_a_topple_as_the_conventions_do(can):
 def test_the_networks_without_simulator_leave_the_predictor_as_it_was(predictor, box):
     """``screen="model"`` screens with a copy of the bundled model that simulates nothing; the predictor itself
     keeps its simulated start and its simulating topple classifier."""
-    from physdyn.eval.rollout import sim_steps
+    from physdyn.plan.screens import screen_predictor
 
-    fast = predictor.without_simulator()
-    assert sim_steps(predictor.model) > 0 and predictor.model.topple_classifier is not None
-    assert sim_steps(fast.model) == 0 and fast.model.topple_classifier is None
-    assert fast is predictor.without_simulator() and fast.without_simulator() is fast  # made once; nothing left to drop
+    fast = screen_predictor(predictor, "model")
+    assert predictor.model.motion.simulates and predictor.model.topple.simulates
+    assert not fast.model.simulates and fast.model.network is predictor.model.network  # the same weights
+    # made once; nothing left to drop
+    assert fast is screen_predictor(predictor, "model") and screen_predictor(fast, "model") is fast
+    assert not hasattr(predictor, "plan")  # planning lives in physdyn.plan, not on the predictor
     v, w = [1.0, 0.2, 0.0], [0.0, 0.0, 4.0]
     full, alone = predictor.predict(box, v, w, seconds=2.0), fast.predict(box, v, w, seconds=2.0)
     assert not np.allclose(full["com_position"], alone["com_position"])  # the simulated start is gone

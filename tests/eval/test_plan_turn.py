@@ -9,9 +9,10 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
+from physdyn.plan import PlanOptions, plan_push
+from physdyn.plan.push import PushResponse
 from physdyn.predict.body import prepare_body
 from physdyn.predict.predictor import load_predictor
-from physdyn.predict.push import PushResponse
 from physdyn.predict.simulator import simulate_from_state
 
 IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
@@ -47,7 +48,7 @@ def test_the_planned_push_turns_the_box_by_the_goal_yaw_in_an_independent_simula
     displacement, turn_deg, _ = _off_centre_push(box)
     assert turn_deg < -40  # the goal needs a real turn, so a sign error cannot hide inside the tolerance
     goal_yaw = sign * abs(turn_deg)
-    plan = load_predictor().plan(box, displacement, goal_yaw=goal_yaw, upright=True, budget_s=1.5, seed=0)
+    plan = plan_push(load_predictor(), box, displacement, goal_yaw, upright=True, budget_s=1.5, options=PlanOptions(seed=0))
     reached, turned, toppled = _simulate(box, plan["lin_vel"], plan["ang_vel"])
     assert not toppled
     assert np.sign(turned) == np.sign(goal_yaw), (turned, goal_yaw)

@@ -70,7 +70,7 @@ def test_predicting_imports_neither_lightning_nor_the_store_library():
     torchmetrics) took 5 of a fresh `physdyn predict`'s 10 s, zarr another 0.3 (docs/predict.md). The
     predictor's own imports, followed through the package, reach neither."""
     seen, reached = module_level_imports("physdyn.predict.predictor")
-    assert {"physdyn.models.dynamics_network", "physdyn.eval.baselines"} <= seen and "torch" in reached  # it followed the package
+    assert {"physdyn.models.dynamics_network", "physdyn.pipeline.presets"} <= seen and "torch" in reached  # it followed the package
     assert not {"lightning", "torchmetrics", "zarr"} & reached, sorted(reached)
 
 
@@ -317,12 +317,9 @@ def test_the_default_prediction_runs_no_simulator(tmp_path, monkeypatch, capsys)
 
     import scipy.spatial
 
-    from physdyn.models.topple_pointnet import forget_thinned
-
     mesh = tmp_path / "part.obj"
     trimesh.creation.box((0.1, 0.06, 0.04)).export(mesh)
     refuse_pybullet(monkeypatch)
-    forget_thinned()
     monkeypatch.setattr(scipy.spatial, "ConvexHull", None)  # nor qhull to thin its cloud: the body knows its hull
     out = tmp_path / "part.json"
     assert cli_main(["predict", str(mesh), "--lin-vel", "0.9", "0.1", "0", "--ang-vel", "0", "0", "3", "--out", str(out)]) == 0
@@ -379,7 +376,7 @@ def test_a_networks_only_model_predicts_with_no_simulator(checkpoint, meshes, mo
     import physdyn.sim.world as world
 
     predictor = load_predictor(checkpoint)
-    assert getattr(predictor.model, "topple_classifier", None) is None
+    assert predictor.model.topple.registered_name == "head" and not predictor.model.simulates
     monkeypatch.setattr(world.pb, "connect", lambda *a, **k: (_ for _ in ()).throw(AssertionError("PyBullet was called")))
     result = predictor.predict(str(meshes / "box.obj"), LIN, ANG, seconds=1.0)
     many = predictor.predict_many([str(meshes / "can.stl")] * 3, LIN, ANG, seconds=[0.5, 1.0, 1.5])
@@ -472,7 +469,7 @@ def test_the_preparation_cache_is_bounded_and_keeps_the_recently_used(checkpoint
     predictor.predict_many(boxes[:2], LIN, ANG, seconds=0.5)
     predictor.predict(boxes[0], LIN, ANG, seconds=0.5)  # box 0 is now the most recently used
     predictor.predict(boxes[2], LIN, ANG, seconds=0.5)  # evicts box 1
-    kept = {key[1] for key in predictor._prepared}
+    kept = {key[1] for key in predictor._prepared.meshes}
     keys = [preparation_key(b, 1.0)[1] for b in boxes]
     assert kept == {keys[0], keys[2]}
 
@@ -517,14 +514,16 @@ def test_each_request_of_a_padded_batch_is_judged_toppled_at_its_own_end(checkpo
     """A classifier whose probability passes 0.5 at step 20: a 1 s request (16 states) ends before it, a 2 s
     one after; padded into one roll-out of 31 states, each keeps its own verdict."""
 
-    class Rising:
-        num_points, points_method, physics, thinned_from = 64, "hull_surface", False, 0
+    import dataclasses
 
-        def predict(self, points_world, lin_vel, ang_vel, steps, inertia=None):
-            return np.tile(np.arange(steps + 1) / 40.0, (len(points_world), 1))
+    from physdyn.pipeline.stages import ToppleStage
+
+    class Rising(ToppleStage):
+        def run(self, batch, motion):
+            return np.tile(np.arange(batch.steps + 1) / 40.0, (batch.size, 1))
 
     predictor = load_predictor(checkpoint)
-    predictor.model.topple_classifier = Rising()
+    predictor.model = dataclasses.replace(predictor.model, topple=Rising())
     box = str(meshes / "box.obj")
     short, long = predictor.predict_many([box, box], [[0.5, 0.0, 0.0]] * 2, [[0.0, 0.0, 1.0]] * 2, seconds=[1.0, 2.0])
     assert len(short["topple_probability"]) == 16 and len(long["topple_probability"]) == 31

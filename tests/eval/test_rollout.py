@@ -9,9 +9,10 @@ import torch
 from physdyn.data.store import load_store
 from physdyn.data.windows import world_oriented_points
 from physdyn.eval.baselines import CheckpointError, load_checkpoint
+from physdyn.pipeline.presets import load_pipeline
 from physdyn.eval.evaluate import EvaluationError, compare, evaluate, gather_truth, select_sequences
 from physdyn.eval.metrics import rotation_angle_deg
-from physdyn.eval.rollout import DELTA_KEYS, integrate, rollout, teacher_forced
+from physdyn.eval.rollout import DELTA_KEYS, RolloutOptions, integrate, rollout, teacher_forced
 from physdyn.models.dynamics_network import DynamicsPrediction
 from physdyn.models.training import fit, load_experiment_config
 from tests.conftest import run_cli
@@ -77,7 +78,7 @@ def test_rollout_loop_with_true_changes_is_exact_and_orients_the_cloud(store):
     model = ReplayTruth(truth)
     S = truth["delta_position"].shape[1]
     # evaluate and predict pass the bodies' spin inertia always; a predictor without it is rolled out all the same
-    out = rollout(model, points, q0, p0, v0, w0, S, spin_inertia=np.full(len(sims), 1e-3))
+    out = rollout(model, points, q0, p0, v0, w0, S, RolloutOptions(spin_inertia=np.full(len(sims), 1e-3)))
     np.testing.assert_allclose(model.points, world_oriented_points(points, q0), atol=1e-6)
     np.testing.assert_allclose(out.com_position, truth["com_position"], atol=1e-6)  # float32 changes
     np.testing.assert_allclose(out.linear_velocity, truth["linear_velocity"], atol=1e-5)
@@ -96,7 +97,7 @@ def test_warm_start_feeds_the_true_velocities_first(store, tiny_checkpoint):
     points = store.points[store.shape_id[sims]][:, : model.num_points]
     K = 3
     warm = (truth["linear_velocity"][:, 1:K + 1], truth["angular_velocity"][:, 1:K + 1])
-    out = rollout(model, points, q0, p0, v0, w0, 12, warm_start_velocities=warm)
+    out = rollout(model, points, q0, p0, v0, w0, 12, RolloutOptions(warm_start_velocities=warm))
     np.testing.assert_allclose(out.fed_linear_velocity[:, :K + 1], truth["linear_velocity"][:, :K + 1], atol=1e-12)
     np.testing.assert_allclose(out.fed_angular_velocity[:, :K + 1], truth["angular_velocity"][:, :K + 1], atol=1e-12)
     # after the warm start the model's own predictions are fed back
@@ -108,7 +109,7 @@ def test_warm_start_feeds_the_true_velocities_first(store, tiny_checkpoint):
     # without a warm start the velocity track is the integrated one, and the recurrent state is carried:
     # the same inputs at every step as teacher forcing give the same changes
     np.testing.assert_array_equal(cold.linear_velocity[:, :-1], cold.fed_linear_velocity)
-    full = rollout(model, points, q0, p0, v0, w0, 12, (truth["linear_velocity"][:, 1:12], truth["angular_velocity"][:, 1:12]))
+    full = rollout(model, points, q0, p0, v0, w0, 12, RolloutOptions((truth["linear_velocity"][:, 1:12], truth["angular_velocity"][:, 1:12])))
     # the roll-out's own orientations: a model fed its orientation then gets the same inputs both ways
     forced = teacher_forced(model, points, q0, truth["linear_velocity"][:, :12], truth["angular_velocity"][:, :12],
                             full.orientation_xyzw[:, :12])
@@ -131,7 +132,7 @@ def test_any_horizon(store, tiny_checkpoint):
         assert np.isfinite(out.com_position).all()
         np.testing.assert_allclose(np.linalg.norm(out.orientation_xyzw, axis=-1), 1.0, atol=1e-12)
     with pytest.raises(ValueError, match="warm_start_velocities"):
-        rollout(model, points, q0, p0, v0, w0, 3, (np.zeros((2, 1, 3)), np.zeros((1, 1, 3))))
+        rollout(model, points, q0, p0, v0, w0, 3, RolloutOptions((np.zeros((2, 1, 3)), np.zeros((1, 1, 3)))))
 
 
 def test_evaluation_end_to_end_with_a_real_checkpoint(store, tiny_checkpoint):
@@ -228,8 +229,8 @@ def test_the_torch_rollout_gives_the_reference_loops_numbers(tiny_checkpoint, st
     points = store.points[store.shape_id[sims]][:, :64]
     warm = (truth["linear_velocity"][:, 1:3], truth["angular_velocity"][:, 1:3])
     for kwargs in ({}, {"warm_start_velocities": warm}):
-        fast = rollout(model, points, q0, p0, v0, w0, 20, **kwargs)
-        slow = rollout(model, points, q0, p0, v0, w0, 20, stepwise=True, **kwargs)
+        fast = rollout(model, points, q0, p0, v0, w0, 20, RolloutOptions(**kwargs))
+        slow = rollout(model, points, q0, p0, v0, w0, 20, RolloutOptions(**kwargs, reference_loop=True))
         for key in ("com_position", "orientation_xyzw", "linear_velocity", "angular_velocity", "topple_probability",
                     "fed_linear_velocity", *DELTA_KEYS):
             np.testing.assert_allclose(getattr(fast, key), getattr(slow, key), rtol=1e-5, atol=1e-5, err_msg=key)
@@ -246,9 +247,9 @@ def test_fit_topple_puts_a_classifier_in_the_checkpoint_and_roll_outs_use_it(tin
     assert "validation accuracy" in capsys.readouterr().out
     assert main(["fit-topple", "--checkpoint", tiny_checkpoint, "--out", str(out)]) == 2  # kept without --overwrite
     assert "already exists" in capsys.readouterr().err
-    plain, model = load_checkpoint(tiny_checkpoint), load_checkpoint(out)
-    assert plain.topple_classifier is None and model.topple_classifier is not None
-    clf = model.topple_classifier
+    plain, model = load_pipeline(tiny_checkpoint), load_pipeline(out)
+    assert plain.topple.registered_name == "head" and model.topple.registered_name == "logistic"
+    clf = model.topple.classifier
     sims = select_sequences(store, "test")
     result = evaluate(model, store, "test", keep_trajectories=True)
     kept = result["trajectories"]
@@ -270,10 +271,10 @@ def test_fit_topple_physics_and_roll_outs_simulate_with_the_bodies_inertia(tiny_
     out = tmp_path / "topple_physics.ckpt"
     assert main(["fit-topple", "--checkpoint", tiny_checkpoint, "--data", tiny_store, "--physics", "--out", str(out)]) == 0
     assert "simulating the hull" in capsys.readouterr().out
-    clf = load_checkpoint(out).topple_classifier
+    clf = load_pipeline(out).topple.classifier
     assert clf.physics
     sims = select_sequences(store, "test")
-    kept = evaluate(load_checkpoint(out), store, "test", keep_trajectories=True)["trajectories"]
+    kept = evaluate(str(out), store, "test", keep_trajectories=True)["trajectories"]
     # evaluate hands the classifier each body's own inertia (the store's), as fit-topple did
     p = clf.probability(store_features(store, sims, None, clf.friction, physics=True))
     np.testing.assert_allclose(kept["predicted"].topple_probability, clf.per_step(p, kept["truth"]["valid"].shape[1]), atol=1e-12)
@@ -312,7 +313,8 @@ def test_sim_seconds_simulates_the_impact_then_the_networks_continue(tiny_checkp
     cloud = store.points[store.shape_id[sims]]
     points = cloud[:, :64]
     inertia = store_world_inertia(store, sims, q0)
-    got = rollout(hybrid, points, q0, p0, v0, w0, 20, topple_points_body=cloud, body_inertia=inertia)
+    given = RolloutOptions(topple_points_body=cloud, body_inertia=inertia)
+    got = rollout(hybrid, points, q0, p0, v0, w0, 20, given)
     with CloudSimulator(time_step=PhysicsConfig().time_step) as sim:
         R = quat_to_matrix(q0)
         expected = sim.trajectories(cloud, q0, p0, v0, w0, 0.25, k, store.rate_hz, np.swapaxes(R, 1, 2) @ inertia @ R)
@@ -332,17 +334,17 @@ def test_sim_seconds_simulates_the_impact_then_the_networks_continue(tiny_checkp
                                   expected["linear_velocity"][:, 1:], expected["angular_velocity"][:, 1:])
     assert (blind["changes"] - warm["changes"])[:, k:].abs().max() > 1e-6
     # the reference loop gives the same roll-out, and a horizon within the simulated start ends on its state
-    slow = rollout(hybrid, points, q0, p0, v0, w0, 20, topple_points_body=cloud, body_inertia=inertia, stepwise=True)
+    slow = rollout(hybrid, points, q0, p0, v0, w0, 20, RolloutOptions(topple_points_body=cloud, body_inertia=inertia, reference_loop=True))
     np.testing.assert_allclose(slow.com_position, got.com_position, atol=1e-6)
-    short = rollout(hybrid, points, q0, p0, v0, w0, 2, topple_points_body=cloud, body_inertia=inertia)
+    short = rollout(hybrid, points, q0, p0, v0, w0, 2, given)
     np.testing.assert_allclose(short.linear_velocity[:, -1], expected["linear_velocity"][:, 2], atol=1e-9)
     np.testing.assert_allclose(short.angular_velocity[:, -1], expected["angular_velocity"][:, 2], atol=1e-9)
     again = integrate(p0, q0, v0, w0, got.deltas())  # the states are their changes' sum: one trajectory
     np.testing.assert_allclose(again["com_position"], got.com_position, atol=1e-9)
     # a caller's warm start (observed velocities) takes the place of the simulated start
     observed = (truth["linear_velocity"][:, 1:3], truth["angular_velocity"][:, 1:3])
-    np.testing.assert_allclose(rollout(hybrid, points, q0, p0, v0, w0, 20, observed).com_position,
-                               rollout(plain, points, q0, p0, v0, w0, 20, observed).com_position, atol=1e-9)
+    np.testing.assert_allclose(rollout(hybrid, points, q0, p0, v0, w0, 20, RolloutOptions(observed)).com_position,
+                               rollout(plain, points, q0, p0, v0, w0, 20, RolloutOptions(observed)).com_position, atol=1e-9)
     # through evaluate and the public predictor, and 0 leaves a model as it was
     assert np.isfinite(evaluate(hybrid, store, "test")["headline"]["final_position_m_median"])
     import trimesh
@@ -371,8 +373,14 @@ def test_a_push_the_simulated_start_topples_is_reported_toppled(tiny_checkpoint,
     from physdyn.geometry.rotations import tilt_angle
     from physdyn.models.topple_classifier import fit_topple_classifier
 
-    model = load_checkpoint(tiny_checkpoint)
-    model.topple_classifier = fit_topple_classifier(store)[0]
+    from physdyn.pipeline.engine import Pipeline
+    from physdyn.pipeline.correction import NoCorrection
+    from physdyn.pipeline.motion import NetworkMotion, SimulatedStartMotion
+    from physdyn.pipeline.topple import LogisticTopple
+
+    network = load_checkpoint(tiny_checkpoint)
+    classifier = LogisticTopple(fit_topple_classifier(store)[0])
+    model = Pipeline(NetworkMotion(network), classifier, NoCorrection())
     early = np.flatnonzero(store.toppled.astype(bool) & (store.topple_step >= 1) & (store.topple_step <= 4))
     calm = np.flatnonzero(~store.toppled.astype(bool))[:4]
     sims = np.concatenate([early[:4], calm])
@@ -381,9 +389,10 @@ def test_a_push_the_simulated_start_topples_is_reported_toppled(tiny_checkpoint,
     p0, q0, v0, w0 = _first_states(truth)
     cloud, points = store.points[store.shape_id[sims]], store.points[store.shape_id[sims]][:, :64]
     inertia = store_world_inertia(store, sims, q0)
-    plain = rollout(model, points, q0, p0, v0, w0, 12, topple_points_body=cloud, body_inertia=inertia)
-    model.config.model.sim_seconds = 0.4  # 6 steps
-    got = rollout(model, points, q0, p0, v0, w0, 12, topple_points_body=cloud, body_inertia=inertia)
+    given = RolloutOptions(topple_points_body=cloud, body_inertia=inertia)
+    plain = rollout(model, points, q0, p0, v0, w0, 12, given)
+    simulating = Pipeline(SimulatedStartMotion(network, 0.4), classifier, NoCorrection())  # 6 steps
+    got = rollout(simulating, points, q0, p0, v0, w0, 12, given)
     tilt = np.degrees(tilt_angle(q0[:, None], got.orientation_xyzw[:, :7]))
     for b in range(len(sims)):
         over = np.flatnonzero(tilt[b] > 45)

@@ -43,7 +43,11 @@ def test_the_model_is_the_one_lightning_would_load(path):
     assert ours.state_dict().keys() == theirs_state.keys()
     for key, value in ours.state_dict().items():
         assert torch.equal(value, theirs_state[key]), key
-    assert (ours.topple_classifier is None) == (theirs.topple_classifier is None)
+    # what fit-topple added travels beside the network, as its pipeline's topple stage
+    from physdyn.models.checkpoint_file import read_checkpoint
+    from physdyn.pipeline.presets import load_pipeline
+
+    assert (load_pipeline(path).topple.registered_name == "head") == (not read_checkpoint(path).get("topple_classifier"))
     assert (ours.linear_channels is None) == (theirs.linear_channels is None)
 
 

@@ -72,16 +72,16 @@ def test_no_network_reads_the_shape_feature_so_the_encoder_is_not_run(box, monke
         warnings.simplefilter("ignore")
         prior = contact_prior_predictor()
     ran = []
-    monkeypatch.setattr(prior.model.predictor, "out_dim", 1)  # as if a network read it: the encoder runs
-    monkeypatch.setattr(prior.model.encoder, "forward", lambda *a, _f=prior.model.encoder.forward: ran.append(1) or _f(*a))
+    monkeypatch.setattr(prior.model.network.predictor, "out_dim", 1)  # as if a network read it: the encoder runs
+    monkeypatch.setattr(prior.model.network.encoder, "forward", lambda *a, _f=prior.model.network.encoder.forward: ran.append(1) or _f(*a))
     before = prior.predict(box, [1.0, 0.3, 0.0], [0.0, 0.0, 6.0], seconds=1.0)
     assert ran
 
     def refuse(*args, **kwargs):
         raise AssertionError("the encoder ran")
 
-    monkeypatch.setattr(prior.model.predictor, "out_dim", 0)
-    monkeypatch.setattr(prior.model.encoder, "forward", refuse)
+    monkeypatch.setattr(prior.model.network.predictor, "out_dim", 0)
+    monkeypatch.setattr(prior.model.network.encoder, "forward", refuse)
     after = prior.predict(box, [1.0, 0.3, 0.0], [0.0, 0.0, 6.0], seconds=1.0)
     np.testing.assert_array_equal(after["com_position"], before["com_position"])
     np.testing.assert_array_equal(after["orientation_xyzw"], before["orientation_xyzw"])
@@ -91,7 +91,7 @@ def test_half_the_sub_steps_integrate_the_same_slide_and_spin_within_two_percent
     # model.contact_substeps (the fast model's 8): the same friction integrated more coarsely (its
     # semi-implicit Euler loses about half a sub-step of travel: 2 mm of a 29 cm slide at 1.2 m/s)
     coarse = contact_prior_predictor()
-    coarse.model.config.model.contact_substeps = 8
+    coarse.model.network.config.model.contact_substeps = 8
     for v, w in (([1.2, 0.0, 0.0], [0.0, 0.0, 0.0]), ([1.0, 0.3, 0.0], [0.0, 0.0, 8.0])):
         fine, half = (p.predict(box, v, w, seconds=1.5) for p in (prior, coarse))
         gap = np.linalg.norm(fine["com_position"][-1] - half["com_position"][-1])
@@ -109,13 +109,12 @@ def test_a_broken_preset_is_refused_with_the_key_that_training_would_name(tmp_pa
 
     from physdyn import config
     from physdyn.errors import ConfigError
-    from physdyn.predict import predictor
 
     shutil.copytree(config.PRESETS, tmp_path / "configs")
     preset = tmp_path / "configs" / "experiment" / "contact_prior.yaml"
     raw = yaml.safe_load(preset.read_text())
     raw["model"]["contact_substeps"] = 0  # the schema takes any int; only the config check refuses it
     preset.write_text(yaml.safe_dump(raw))
-    monkeypatch.setattr(predictor, "PRESETS", tmp_path / "configs")
+    monkeypatch.setattr(config, "PRESETS", tmp_path / "configs")
     with pytest.raises(ConfigError, match="model.contact_substeps"):
         contact_prior_predictor()

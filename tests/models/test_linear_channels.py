@@ -149,7 +149,9 @@ def test_a_model_combined_with_itself_is_that_model(tiny_store, tmp_path, data, 
         with torch.inference_mode():
             expected = batch_rollout(model, points, v0, w0, 20, topple=topple)["changes"]
             got = batch_rollout(both, points, v0, w0, 20, topple=topple)["changes"]
-        np.testing.assert_allclose(got.numpy(), expected.numpy(), rtol=1e-6, atol=1e-6)
+        # float32 round-off: the combined model sums its two networks' outputs in another order, and a
+        # multi-threaded matmul under parallel test workers moves the last digit (as the test above allows)
+        np.testing.assert_allclose(got.numpy(), expected.numpy(), rtol=1e-5, atol=1e-5)
 
 
 def test_a_combined_model_predicts_and_evaluates_through_the_public_path(combined, store):

@@ -4,6 +4,8 @@ checkpoint with it predicts with no simulator."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -14,6 +16,7 @@ from physdyn.eval.outcome_fit import fit_outcome_correction
 from physdyn.geometry.rotations import quat_multiply, rotvec_to_quat
 from physdyn.models.outcome_correction import (MIRROR_INPUTS, MIRROR_TARGETS, OutcomeCorrection, OutcomeNet,
                                                outcome_inputs, yaw_of)
+from physdyn.pipeline.correction import PointNetCorrection
 from physdyn.predict.predictor import contact_prior_predictor
 from tests.conftest import module_level_imports, refuse_pybullet
 
@@ -49,6 +52,7 @@ def fitted_pointnet(tiny_hull_store):
 
 def test_a_pointnet_correction_reads_the_thinned_cloud_and_learns(fitted_pointnet):
     from physdyn.geometry.sampling import thin_hull_surface
+    from physdyn.models.topple_pointnet import thinned_clouds
 
     store, correction, report = fitted_pointnet
     assert (correction.num_points, correction.thinned_from) == (16, store.points.shape[1])
@@ -56,7 +60,7 @@ def test_a_pointnet_correction_reads_the_thinned_cloud_and_learns(fitted_pointne
         before, after = split["position_cm"]
         assert after < 0.9 * before, (before, after)
     # the clouds it reads: each given cloud thinned as at fitting, the hull's vertices first
-    clouds = correction.body_clouds(store.points[:3])
+    clouds = thinned_clouds(store.points[:3], correction.thinned_to)
     np.testing.assert_array_equal(clouds, np.stack([thin_hull_surface(c, 16) for c in store.points[:3]]))
     # it reads them: one push's inputs with each shape's cloud give different corrections; without a cloud, an error
     inputs = np.tile(np.linspace(-1.0, 1.0, 13) * correction.inputs_std + correction.inputs_mean, (3, 1))
@@ -65,7 +69,7 @@ def test_a_pointnet_correction_reads_the_thinned_cloud_and_learns(fitted_pointne
     with pytest.raises(ValueError, match="reads each push's cloud"):
         correction.correction(inputs)
     with pytest.raises(ValueError, match="fitted on hull_surface clouds of 64 points and is given 16"):
-        correction.body_clouds(clouds)
+        correction.check_given(clouds)
     # its networks run on numpy: the torch network's numbers to float32 rounding, a push alone as in a batch
     from physdyn.models.topple_pointnet import ToppleNet
 
@@ -91,7 +95,7 @@ def test_a_pointnet_correction_reads_the_thinned_cloud_and_learns(fitted_pointne
 def test_what_its_networks_trained_on_is_what_a_roll_out_gives_them(fitted_pointnet):
     from physdyn.data.windows import store_spin_inertia, store_world_inertia
     from physdyn.eval.outcome_fit import EXTRA_STEPS, outcome_training_data
-    from physdyn.eval.rollout import rollout
+    from physdyn.eval.rollout import RolloutOptions, rollout
     from physdyn.geometry.rotations import quat_conjugate
     from physdyn.models.topple_pointnet import travel_turn
 
@@ -110,16 +114,17 @@ def test_what_its_networks_trained_on_is_what_a_roll_out_gives_them(fitted_point
     q0, p0 = store.orientation_xyzw[first], store.com_position[first]
     v0, w0 = store.linear_velocity[first], store.angular_velocity[first]
     kwargs = {"spin_inertia": store_spin_inertia(store, sims, q0), "body_inertia": store_world_inertia(store, sims, q0)}
-    plain = rollout(model, store.points[store.shape_id[sims]], q0, p0, v0, w0, horizon, **kwargs)
-    model.outcome_correction = correction
-    moved = rollout(model, store.points[store.shape_id[sims]], q0, p0, v0, w0, horizon, **kwargs)
+    plain = rollout(model, store.points[store.shape_id[sims]], q0, p0, v0, w0, horizon, RolloutOptions(**kwargs))
+    model = dataclasses.replace(model, correction=PointNetCorrection(correction, store.rate_hz))
+    moved = rollout(model, store.points[store.shape_id[sims]], q0, p0, v0, w0, horizon, RolloutOptions(**kwargs))
     turn = travel_turn(v0)
     shift = moved.com_position[:, -1] - plain.com_position[:, -1]
     np.testing.assert_allclose(np.einsum("bij,bj->bi", turn, shift)[:, :2], fix[:, :2], atol=1e-6)
     np.testing.assert_allclose(yaw_of(quat_multiply(moved.orientation_xyzw[:, -1],
                                                     quat_conjugate(plain.orientation_xyzw[:, -1]))), fix[:, 2], atol=1e-6)
     # a caller that reads the states only (Predictor) gets the same states, and no changes worked out again
-    states_only = rollout(model, store.points[store.shape_id[sims]], q0, p0, v0, w0, horizon, with_changes=False, **kwargs)
+    states_only = rollout(model, store.points[store.shape_id[sims]], q0, p0, v0, w0, horizon,
+                          RolloutOptions(with_changes=False, **kwargs))
     for key in ("com_position", "orientation_xyzw", "linear_velocity", "angular_velocity"):
         np.testing.assert_array_equal(getattr(states_only, key), getattr(moved, key), err_msg=key)
     assert states_only.delta_rotation is None and states_only.num_steps == moved.num_steps == horizon
@@ -149,7 +154,7 @@ def test_a_pointnet_correction_moves_predictions_with_no_simulator_and_a_padded_
     store, correction, _ = fitted_pointnet
     prior = contact_prior_predictor(rate_hz=store.rate_hz, num_points=store.points.shape[1])
     corrected = contact_prior_predictor(rate_hz=store.rate_hz, num_points=store.points.shape[1])
-    corrected.model.outcome_correction = correction
+    corrected.model = dataclasses.replace(corrected.model, correction=PointNetCorrection(correction, store.rate_hz))
     box = trimesh.creation.box((0.08, 0.05, 0.04))
     corrected.predict(box.copy(), [0.5, 0.0, 0.0], [0.0, 0.0, 0.0], seconds=0.2)  # imports done, mesh prepared
     refuse_pybullet(monkeypatch)
@@ -297,7 +302,7 @@ def test_fit_outcome_writes_a_checkpoint_that_predicts_with_no_simulator(tiny_hu
     with_cloud = tmp_path / "outcome_pointnet.ckpt"
     assert main(["fit-outcome", "--checkpoint", "contact_prior", "--data", tiny_hull_store, "--out", str(with_cloud),
                  "--pointnet", "--num-points", "16", "--widths", "8", "16", "32", "--steps", "40", "--batch", "32"]) == 0
-    read = load_predictor(str(with_cloud)).model.outcome_correction
+    read = load_predictor(str(with_cloud)).model.correction.correction
     assert (read.num_points, read.thinned_from, tuple(read.point_widths), read.width) == (16, 64, (8, 16), 32)
     # tested on a store of clouds it cannot read: one line naming both, nothing written
     capsys.readouterr()
@@ -330,7 +335,7 @@ def test_fit_outcome_writes_a_checkpoint_that_predicts_with_no_simulator(tiny_hu
     monkeypatch.undo()
     predictor = load_predictor(str(out))
     prior = contact_prior_predictor(num_points=64)
-    assert predictor.model.outcome_correction is not None
+    assert predictor.model.correction.registered_name == "mlp"
     box = trimesh.creation.box((0.08, 0.05, 0.04))
     predictor.predict(box.copy(), [0.5, 0.0, 0.0], [0.0, 0.0, 0.0], seconds=0.2)  # imports done, mesh prepared
     refuse_pybullet(monkeypatch)
@@ -347,24 +352,23 @@ def test_the_shipped_fast_model_simulates_nothing_and_a_file_of_its_name_comes_f
     from physdyn.predict.predictor import load_predictor
 
     predictor = load_predictor("fast")
-    model = predictor.model
-    assert model.outcome_correction is not None and type(model.topple_classifier).__name__ == "PointNetToppleClassifier"
-    assert predictor.points_method == "hull_surface" and model.config.model.sim_seconds == 0
+    pipeline = predictor.model
+    model, classifier = pipeline.network, pipeline.topple.classifier
+    assert pipeline.correction.registered_name == "pointnet" and type(classifier).__name__ == "PointNetToppleClassifier"
+    assert predictor.points_method == "hull_surface" and not pipeline.simulates
     # its classifier reads the model's 256-point cloud thinned to 64 (fit-topple --pointnet --num-points 64)
-    assert (model.topple_classifier.num_points, model.topple_classifier.thinned_from) == (64, 256)
+    assert (classifier.num_points, classifier.thinned_from) == (64, 256)
     box = trimesh.creation.box((0.1, 0.06, 0.04))
     predictor.predict(box.copy(), [0.5, 0.0, 0.0], [0.0, 0.0, 0.0], seconds=0.2)  # imports done, mesh prepared
     # a mesh forgotten is new again: its thinned cloud too (benchmarks/frontier.py times its thinning)
-    from physdyn.models import topple_pointnet
-
-    assert any(key[0] == 64 for key in topple_pointnet._THINNED)
+    assert any(key[0] == 64 for key in predictor._prepared.thinned)
     predictor.forget_meshes()
-    assert not topple_pointnet._THINNED
+    assert not predictor._prepared.thinned and not predictor._prepared.meshes
     refuse_pybullet(monkeypatch)
     v0, w0 = np.array([0.8, 0.1, 0.0]), np.array([0.0, 0.0, 3.0])
     mine = predictor.predict(box, v0, w0, seconds=2.0)
     alone = contact_prior_predictor()
-    alone.model.config.model.contact_substeps = model.config.model.contact_substeps  # fast's prior: 8 sub-steps
+    alone.model.network.config.model.contact_substeps = model.config.model.contact_substeps  # fast's prior: 8 sub-steps
     prior = alone.predict(box, v0, w0, seconds=2.0)
     assert not mine["toppled"]
     np.testing.assert_allclose(mine["linear_velocity"][0], v0)  # the push as given
@@ -377,10 +381,13 @@ def test_the_shipped_fast_model_simulates_nothing_and_a_file_of_its_name_comes_f
     from physdyn.data.windows import world_oriented_points
     from physdyn.predict.body import prepare_body
 
-    correction = model.outcome_correction
+    from physdyn.models.topple_pointnet import thinned_clouds
+
+    correction = pipeline.correction.correction
     assert (correction.num_points, correction.thinned_from) == (64, 256)
     cloud = prepare_body(box).points_body(predictor.num_points, predictor.points_method)
-    seen = np.einsum("bij,bnj->bni", turn, world_oriented_points(correction.body_clouds(cloud[None]), ends[1][:, 0]))
+    seen = np.einsum("bij,bnj->bni", turn, world_oriented_points(thinned_clouds(cloud[None], correction.thinned_to),
+                                                                 ends[1][:, 0]))
     fix = correction.correction(x, seen)[0]
     moved = mine["com_position"][-1, :2] - prior["com_position"][-1, :2]
     np.testing.assert_allclose([moved @ turn[0, 0, :2], moved @ turn[0, 1, :2]], fix[:2], atol=1e-9)
@@ -392,7 +399,7 @@ def test_the_shipped_fast_model_simulates_nothing_and_a_file_of_its_name_comes_f
     # a file called "fast" where the user is wins over the shipped model's name; a folder of that name does not
     monkeypatch.chdir(tmp_path)
     (tmp_path / "fast").mkdir()
-    assert load_predictor("fast").model.outcome_correction is not None
+    assert load_predictor("fast").model.correction.registered_name == "pointnet"
     (tmp_path / "fast").rmdir()
     (tmp_path / "fast").write_text("not a checkpoint")
     with pytest.raises(CheckpointError, match="fast is not a PyTorch checkpoint"):

@@ -17,7 +17,8 @@ from physdyn.data.windows import WindowSource, frame_targets, turned_about_verti
 from physdyn.errors import ConfigError
 from physdyn.eval.baselines import coulomb_slide
 from physdyn.eval.evaluate import evaluate, gather_truth
-from physdyn.eval.rollout import rollout, teacher_forced
+from physdyn.eval.rollout import RolloutOptions, rollout, teacher_forced
+from physdyn.models.network_loss import closed_loop
 from physdyn.geometry.rotations import quat_to_matrix
 from physdyn.models.dynamics_module import DynamicsModel
 from physdyn.models.rotations import rotation_6d
@@ -214,7 +215,7 @@ def test_orientation_fed_step_by_step_matches_the_teacher_forced_window(quicksta
     # velocities in, different orientation in, so the changes differ once the object has turned
     warm = (truth["linear_velocity"][:, 1:8], truth["angular_velocity"][:, 1:8])
     rolled = rollout(model, points, truth["orientation_xyzw"][:, 0], truth["com_position"][:, 0],
-                     truth["linear_velocity"][:, 0], truth["angular_velocity"][:, 0], 8, warm)
+                     truth["linear_velocity"][:, 0], truth["angular_velocity"][:, 0], 8, RolloutOptions(warm))
     np.testing.assert_allclose(rolled.fed_linear_velocity, truth["linear_velocity"][:, :8], atol=1e-6)
     np.testing.assert_allclose(rolled.delta_position[:, 0], window["delta_position"][:, 0], atol=1e-5)
 
@@ -240,7 +241,7 @@ def test_feedback_targets_lead_from_the_fed_velocities_to_the_true_next_ones(qui
     model.train()
     batch = next(iter(dm.train_dataloader()))
     torch.manual_seed(0)
-    changes, logit, targets = model._closed_loop(model.encode(batch["points"]), batch)
+    changes, logit, targets = closed_loop(model, model.encode(batch["points"]), batch)
     assert changes.shape == targets.shape == batch["delta_position"].shape[:2] + (12,)
     si = targets * model.change_scale + model.change_shift
     true_next_v = batch["linear_velocity"] + batch["delta_linear_velocity"]

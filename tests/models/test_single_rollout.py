@@ -129,10 +129,10 @@ def test_contact_inertia_body_spins_the_prior_with_the_given_inertia(quickstart_
     first = store.start[sims] + np.minimum(starts, store.lengths()[sims] - 1)
     np.testing.assert_allclose(window["spin_inertia"], store_spin_inertia(store, sims, store.orientation_xyzw[first]), rtol=1e-6)
     # a roll-out with the body's inertia: batched and one object at a time alike
-    from physdyn.eval.rollout import rollout
+    from physdyn.eval.rollout import RolloutOptions, rollout
 
-    batch = rollout(body, points, q0, truth["com_position"][:, 0], v0, w0, 20, spin_inertia=exact)
-    one = rollout(body, points[:1], q0[:1], truth["com_position"][:1, 0], v0[:1], w0[:1], 20, spin_inertia=exact[:1])
+    batch = rollout(body, points, q0, truth["com_position"][:, 0], v0, w0, 20, RolloutOptions(spin_inertia=exact))
+    one = rollout(body, points[:1], q0[:1], truth["com_position"][:1, 0], v0[:1], w0[:1], 20, RolloutOptions(spin_inertia=exact[:1]))
     np.testing.assert_allclose(one.com_position, batch.com_position[:1], atol=1e-5)
     plain = rollout(body, points[:1], q0[:1], truth["com_position"][:1, 0], v0[:1], w0[:1], 20)
     assert np.abs(plain.delta_rotation - one.delta_rotation).max() > 1e-4  # the inertia changed the spin

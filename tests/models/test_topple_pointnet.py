@@ -4,6 +4,8 @@ toppling with no simulator anywhere in the prediction."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -77,11 +79,11 @@ def test_the_inputs_are_in_the_travel_frame_and_mirror_as_the_training_assumes(h
 
 def test_a_checkpoint_keeps_it_and_is_read_without_running_code(fitted, tmp_path):
     from physdyn.models.checkpoint_file import read_torch_file, write_torch_file
-    from physdyn.models.topple_classifier import topple_classifier_from_dict
+    from physdyn.pipeline.topple import classifier_from_dict
 
     store, classifier, _ = fitted
     write_torch_file({"topple_classifier": classifier.to_dict()}, tmp_path / "c.ckpt")
-    back = topple_classifier_from_dict(read_torch_file(tmp_path / "c.ckpt", "a checkpoint")["topple_classifier"])
+    back = classifier_from_dict(read_torch_file(tmp_path / "c.ckpt", "a checkpoint")["topple_classifier"])
     assert isinstance(back, PointNetToppleClassifier) and back.points_method == "hull_surface" and not back.physics
     first = stores_first_frames([store], split=1)
     np.testing.assert_array_equal(back.probability(first["points"], first["v0"], first["w0"], first["spin"]),
@@ -89,12 +91,12 @@ def test_a_checkpoint_keeps_it_and_is_read_without_running_code(fitted, tmp_path
     # a classifier's dict without "point_widths" (files written without it) reads as the default widths
     old = classifier.to_dict()
     del old["point_widths"]
-    assert topple_classifier_from_dict(old).point_widths == (64, 128)
+    assert classifier_from_dict(old).point_widths == (64, 128)
 
 
 def test_narrower_per_point_layers_train_and_travel_through_a_checkpoint(hull_store, tmp_path):
     from physdyn.models.checkpoint_file import read_torch_file, write_torch_file
-    from physdyn.models.topple_classifier import topple_classifier_from_dict
+    from physdyn.pipeline.topple import classifier_from_dict
 
     torch.set_num_threads(1)
     store = load_store(hull_store)
@@ -104,7 +106,7 @@ def test_narrower_per_point_layers_train_and_travel_through_a_checkpoint(hull_st
                       "points.4.weight": (16, 12), "points.4.bias": (16,)}
     assert report["val_accuracy"] >= report["val_majority"]
     write_torch_file({"topple_classifier": classifier.to_dict()}, tmp_path / "c.ckpt")
-    back = topple_classifier_from_dict(read_torch_file(tmp_path / "c.ckpt", "a checkpoint")["topple_classifier"])
+    back = classifier_from_dict(read_torch_file(tmp_path / "c.ckpt", "a checkpoint")["topple_classifier"])
     assert back.point_widths == (8, 12)
     first = stores_first_frames([store], split=1)
     np.testing.assert_array_equal(back.probability(first["points"], first["v0"], first["w0"], first["spin"]),
@@ -125,7 +127,7 @@ def test_a_model_with_it_predicts_toppling_with_no_simulator(fitted, tiny_store,
     networks = export_checkpoint(BUNDLED_CHECKPOINT, tmp_path / "networks.ckpt", settings=["model.sim_seconds=0"])
     write_with_classifier(networks, classifier, tmp_path / "pointnet.ckpt")
     predictor = load_predictor(str(tmp_path / "pointnet.ckpt"))
-    assert type(predictor.model.topple_classifier).__name__ == "PointNetToppleClassifier"
+    assert type(predictor.model.topple.classifier).__name__ == "PointNetToppleClassifier"
     box = trimesh.creation.box((0.06, 0.06, 0.3))  # tall and narrow: pushed low and hard it may topple
     predictor.predict(box.copy(), [0.5, 0.0, 0.0], [0.0, 0.0, 0.0], seconds=0.2)  # imports done, mesh prepared
     # PyBullet refuses to run from here on: any simulation in the prediction would fail, as the simulator
@@ -197,7 +199,8 @@ def test_fitted_on_thinned_clouds_it_reads_them_thinned_in_fitting_testing_and_p
     from physdyn.geometry.sampling import thin_hull_surface
     from physdyn.models.checkpoint_file import read_torch_file, write_torch_file
     from physdyn.models.export import export_checkpoint
-    from physdyn.models.topple_classifier import topple_classifier_from_dict
+    from physdyn.models.topple_pointnet import thinned_clouds
+    from physdyn.pipeline.topple import PointNetTopple, classifier_from_dict
     from physdyn.predict.body import prepare_body
     from physdyn.predict.predictor import BUNDLED_CHECKPOINT, contact_prior_predictor, load_predictor
 
@@ -208,20 +211,19 @@ def test_fitted_on_thinned_clouds_it_reads_them_thinned_in_fitting_testing_and_p
     # the network was chosen on thinned clouds: its own validation accuracy is the classifier's, which thins
     assert report["val_accuracy"] == pytest.approx(report["network_val_accuracy"][0], abs=1.5 / report["val_sequences"])
     assert report["val_accuracy"] >= report["val_majority"]
-    clouds = classifier.body_clouds(store.points[:5])
+    clouds = thinned_clouds(store.points[:5], classifier.thinned_to)
     assert clouds.shape == (5, 24, 3) and np.array_equal(clouds[3], thin_hull_surface(store.points[3], 24))
     # through a checkpoint; a file from before thinning reads its clouds whole
     write_torch_file({"topple_classifier": classifier.to_dict()}, tmp_path / "c.ckpt")
-    assert topple_classifier_from_dict(read_torch_file(tmp_path / "c.ckpt", "a checkpoint")["topple_classifier"]).thinned_from == 64
+    assert classifier_from_dict(read_torch_file(tmp_path / "c.ckpt", "a checkpoint")["topple_classifier"]).thinned_from == 64
     old = classifier.to_dict()
     del old["thinned_from"]
-    assert topple_classifier_from_dict(old).thinned_from == 0
+    assert classifier_from_dict(old).thinned_from == 0
     # `physdyn test`'s roll-outs: each push's probability is the classifier's on its shape's thinned cloud
-    model = contact_prior_predictor(num_points=64).model
-    model.topple_classifier = classifier
+    model = dataclasses.replace(contact_prior_predictor(num_points=64).model, topple=PointNetTopple(classifier))
     sims = np.arange(12)
     rolled = predict_rollouts(model, store, sims, gather_truth(store, sims, 10))
-    first = stores_first_frames([store], clouds=[classifier.body_clouds(store.points)])
+    first = stores_first_frames([store], clouds=[thinned_clouds(store.points, classifier.thinned_to)])
     expected = classifier.probability(first["points"][:12], first["v0"][:12], first["w0"][:12], first["spin"][:12])
     np.testing.assert_allclose(rolled.topple_probability[:, -1], expected * classifier.per_step(np.ones(1), 10)[0, -1],
                                rtol=1e-5)
@@ -238,12 +240,12 @@ def test_fitted_on_thinned_clouds_it_reads_them_thinned_in_fitting_testing_and_p
     assert result["topple_probability"][-1] == pytest.approx(expected[0] * classifier.timing[-1], rel=1e-5)
     # with a simulated start, PyBullet runs on the hull of the cloud the classifier is given (hull_surface, of the
     # stores' size), neither the thinned one nor the model's surface cloud
-    import physdyn.eval.rollout as rollout_module
+    import physdyn.pipeline.motion as motion_module
 
     write_with_classifier(BUNDLED_CHECKPOINT, classifier, tmp_path / "hybrid.ckpt")
     hybrid = load_predictor(str(tmp_path / "hybrid.ckpt"))
-    simulate, seen = rollout_module.simulated_start, []
-    monkeypatch.setattr(rollout_module, "simulated_start", lambda model, points, *a: seen.append(points.shape) or simulate(model, points, *a))
+    simulate, seen = motion_module.simulated_start, []
+    monkeypatch.setattr(motion_module, "simulated_start", lambda model, points, *a: seen.append(points.shape) or simulate(model, points, *a))
     hybrid.predict(box, [1.0, 0.0, 0.0], [0.0, 0.0, 1.0], seconds=1.0)
     assert seen == [(1, 64, 3)] and hybrid.num_points == 256
     # asked to thin to as many points as the stores hold: one line, nothing written

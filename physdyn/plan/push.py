@@ -1,5 +1,6 @@
-"""The push as the conventions define it, for a prepared body resting on the ground: where a horizontal
-ray meets the surface, and the velocities right after a force over one physics step there.
+"""The pushes a plan searches over. The push as the conventions define it, for a prepared body resting on the
+ground: where a horizontal ray meets the surface, and the velocities right after a force over one physics
+step there (``PushResponse``); the bounds of the search (``PushBounds``) and its coordinates (``PushSpace``).
 
 ``PushResponse`` keeps one PyBullet world with the body in it and answers each push by one physics step
 (tens of microseconds), exactly as the dataset generator pushes (``physdyn.sim.trajectory.simulate``).
@@ -12,12 +13,16 @@ topple (docs/plan.md, "The push"). So the step is taken, not the formula.
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from physdyn.config import PhysicsConfig
+from physdyn.config import ImpulseConfig, PhysicsConfig
+from physdyn.errors import PredictionError
 from physdyn.geometry.rotations import quat_to_matrix
+from physdyn.plan.goal import Goal
 from physdyn.sim.bullet import pb
 from physdyn.sim.trajectory import place_at_rest
 from physdyn.sim.world import PhysicsWorld
@@ -119,3 +124,78 @@ class PushResponse:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+@dataclass(frozen=True)
+class PushBounds:
+    """The pushes searched over: speed (m/s, the speed change of a free body), the push point's height
+    within the centre-of-mass height +/- ``height_fraction`` of the object's height, and its sideways offset
+    up to ``lateral_fraction`` of the half-width. None: the training pushes' (``ImpulseConfig``)."""
+
+    speed_min: float | None = None
+    speed_max: float | None = None
+    height_fraction: float | None = None
+    lateral_fraction: float | None = None
+
+    def resolved(self) -> tuple[float, float, float, float]:
+        """(speed_min, speed_max, height_fraction, lateral_fraction), defaults filled in, or a one-line
+        ``PredictionError``."""
+        defaults = ImpulseConfig()
+        values = []
+        for name in ("speed_min", "speed_max", "height_fraction", "lateral_fraction"):
+            value = getattr(self, name)
+            value = getattr(defaults, name) if value is None else value
+            try:
+                values.append(float(value))
+            except (TypeError, ValueError):
+                raise PredictionError(f"{name} must be a number, got {value!r}") from None
+            if not math.isfinite(values[-1]) or values[-1] < 0:
+                raise PredictionError(f"{name} must be a finite number >= 0, got {value!r}")
+        lo, hi, height, lateral = values
+        if not 0 < lo <= hi <= 10.0:
+            raise PredictionError(f"speed bounds must satisfy 0 < speed_min <= speed_max <= 10 m/s, got {lo:g} and {hi:g}")
+        if height > 0.5 or lateral > 1.0:
+            raise PredictionError(f"height_fraction must be at most 0.5 and lateral_fraction at most 1, got {height:g} and {lateral:g}")
+        return lo, hi, height, lateral
+
+
+class PushSpace:
+    """Search coordinates u (B, 4) in [0, 1] -> pushes. u = (heading of the push / 2 pi, height in the band,
+    sideways offset, speed): the point is where a horizontal ray at that height, offset sideways of the
+    centre of mass by up to ``lateral_fraction`` of the half-width, meets the surface (as the generator
+    draws it, ``physdyn.sim.impulse``); the band is the centre-of-mass height +/- ``height_fraction`` of the
+    object's height; the impulse is mass x speed along the heading. ``bounds``: ``PushBounds.resolved()``."""
+
+    def __init__(self, response: PushResponse, bounds: tuple[float, float, float, float]):
+        speed_min, speed_max, height_fraction, lateral_fraction = bounds
+        self.response = response
+        self.speed = (speed_min, speed_max)
+        top, com_z = response.top, float(response.com[2])
+        lo = max(com_z - height_fraction * top, 0.05 * top)
+        hi = min(com_z + height_fraction * top, 0.95 * top)
+        self.height = (min(lo, hi), max(lo, hi))
+        self.lateral_fraction = lateral_fraction
+
+    def pushes(self, u: np.ndarray) -> dict[str, np.ndarray]:
+        """``push_direction``, ``push_point`` (B, 3) world; ``push_speed`` (B,); ``impulse`` (B, 3) N s;
+        ``lin_vel``, ``ang_vel`` (B, 3): the state right after the push."""
+        heading = 2.0 * np.pi * u[:, 0]
+        direction = np.stack([np.cos(heading), np.sin(heading), np.zeros(len(u))], axis=1)
+        height = self.height[0] + u[:, 1] * (self.height[1] - self.height[0])
+        lateral = (2.0 * u[:, 2] - 1.0) * self.lateral_fraction * self.response.half_width(direction)
+        speed = self.speed[0] + u[:, 3] * (self.speed[1] - self.speed[0])
+        point = self.response.surface_points(direction, height, lateral)
+        impulse = self.response.spec.mass * speed[:, None] * direction
+        lin, ang = self.response.velocities(point, impulse)
+        return {"push_direction": direction, "push_point": point, "push_speed": speed, "impulse": impulse,
+                "lin_vel": lin, "ang_vel": ang}
+
+    def toward(self, goal: Goal) -> np.ndarray:
+        """(4,) search coordinates of a straight push toward the goal at the speed a Coulomb slide needs (at
+        the push world's friction and gravity): where the first round's distribution is centred."""
+        physics = self.response.world.physics
+        friction, gravity = physics.lateral_friction_object * physics.lateral_friction_ground, physics.gravity
+        heading = math.atan2(goal.xy[1], goal.xy[0]) % (2.0 * np.pi)
+        speed = math.sqrt(2.0 * friction * abs(gravity) * float(np.linalg.norm(goal.xy)))
+        s = np.clip((speed - self.speed[0]) / max(self.speed[1] - self.speed[0], 1e-9), 0.0, 1.0)
+        return np.array([heading / (2.0 * np.pi), 0.5, 0.5, s])

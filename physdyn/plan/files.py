@@ -1,4 +1,4 @@
-"""A plan's files: the JSON of ``Predictor.plan`` (keys in docs/plan.md), written whole or not at all; its
+"""A plan's files: the JSON of ``plan_push`` (keys in docs/plan.md), written whole or not at all; its
 one-line summary; and its viewer page, the planned push beside its PyBullet check."""
 
 from __future__ import annotations
