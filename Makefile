@@ -40,28 +40,21 @@ quickstart: install
 	else physdyn simulate --config configs/data/quickstart_hull_small.yaml --out $(QS_DATA) --workers $(WORKERS) \
 		$$([ -d $(QS_DATA) ] && echo --resume); fi
 	physdyn data info $(QS_DATA)
-	@# 3. The shipped default's recipe on it, small (docs/model-card.md, "fast"): the contact prior
-	@# (nothing to train: `fit` writes it), a PointNet correction of where pushes end, a PointNet topple classifier.
-	@if [ -f $(QS_RUN)/prior/finished.json ]; then echo "$(QS_RUN)/prior is written; kept"; \
-	else physdyn fit --config configs/experiment/quickstart_fast.yaml --overwrite; fi
-	@if [ -f $(QS_RUN)/outcome.ckpt ]; then echo "$(QS_RUN)/outcome.ckpt exists; kept"; \
-	else physdyn fit-outcome --checkpoint $(QS_RUN)/prior/best.ckpt --pointnet --num-points 64 --widths 32 64 128 \
-		--steps 300 --batch 256 --out $(QS_RUN)/outcome.ckpt; fi
-	@if [ -f $(QS_RUN)/topple.ckpt ]; then echo "$(QS_RUN)/topple.ckpt exists; kept"; \
-	else physdyn fit-topple --pointnet --num-points 64 --checkpoint $(QS_RUN)/outcome.ckpt \
-		--steps 300 --out $(QS_RUN)/topple.ckpt; fi
-	$(PYTHON) -m physdyn.models.export $(QS_RUN)/topple.ckpt $(QS_RUN)/fast.ckpt --set name=quickstart --overwrite
+	@# 3. The shipped default's recipe on it, small (docs/model-card.md, "fast"): the contact prior (nothing to
+	@# train: `fit` writes it), a PointNet topple classifier and a PointNet correction of where pushes end.
+	physdyn recipe fast --data $(QS_DATA) --out $(QS_RUN) --set topple.steps=300 --set topple.seeds=[0] \
+		--set correction.steps=300 --set correction.batch=256 --set correction.seeds=[0] --set model.name=quickstart
 	@# 4. Its verdicts: against Coulomb sliding on the store's test split, and against PyBullet on meshes new
 	@# to it (a small run of docs/performance.md's frontier), the shipped `fast` beside it.
-	physdyn test --checkpoint $(QS_RUN)/fast.ckpt --data $(QS_DATA) --out $(QS_OUT) --overwrite
+	physdyn test --checkpoint $(QS_RUN)/model.ckpt --data $(QS_DATA) --out $(QS_OUT) --overwrite
 	$(PYTHON) benchmarks/frontier.py --sets pybullet --meshes 12 --pushes 5 --one-meshes 1 --one-mesh-pushes 64 \
-		--predictor quickstart=$(QS_RUN)/fast.ckpt --predictor fast=fast \
+		--predictor quickstart=$(QS_RUN)/model.ckpt --predictor fast=fast \
 		--out $(QS_OUT)/frontier.md --plot $(QS_OUT)/frontier.png
 	@echo
 	@echo "results:"
 	@echo "  prediction     $(QS_OUT)/bracket.json, bracket.html (the shipped fast beside PyBullet; open in a browser)"
 	@echo "  dataset        $(QS_DATA)   (physdyn data info $(QS_DATA))"
-	@echo "  model          $(QS_RUN)/fast.ckpt (the contact prior, prior/; + correction, outcome.ckpt; + topple classifier, topple.ckpt)"
+	@echo "  model          $(QS_RUN)/model.ckpt (each stage's checkpoint beside it: motion/, topple.ckpt, correction.ckpt)"
 	@echo "  test report    $(QS_OUT)/report.md, metrics.json, *.png, viewer.html (open in a browser)"
 	@echo "  frontier       $(QS_OUT)/frontier.md, frontier.png (quickstart and the shipped fast beside PyBullet, new meshes)"
 	@echo

@@ -14,30 +14,30 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 MESH = REPO / "examples" / "meshes" / "bracket_mm.obj"
 QUICKSTART_DATA = "configs/data/quickstart_hull_small.yaml"
-QUICKSTART_PRIOR = "configs/experiment/quickstart_fast.yaml"
 
 
 def test_the_quickstart_trains_the_shipped_defaults_kind_of_model():
-    from physdyn.config import DataConfig, load_config, to_dict
+    from physdyn.config import DataConfig, load_config, preset_path, to_dict
     from physdyn.models.checkpoint_file import read_checkpoint
     from physdyn.models.training import load_experiment_config
+    from physdyn.pipeline.presets import preset_recipe
 
     shipped = read_checkpoint(REPO / "physdyn" / "assets" / "fast.ckpt")["hyper_parameters"]
-    prior = to_dict(load_experiment_config(REPO / QUICKSTART_PRIOR))
+    motion = preset_recipe("fast")[0]  # the recipe's first step writes the contact prior
+    prior = to_dict(load_experiment_config(preset_path(motion.config, "experiment"),
+                                           [f"{k}={v}" for k, v in motion.settings.items()]))
     assert prior["model"] == shipped["config"]["model"]  # the contact prior with fast's settings (8 sub-steps...)
     assert prior["data"]["normalization"] == shipped["config"]["data"]["normalization"]
     assert prior["trainer"]["max_steps"] == 0  # no network: nothing to train, `fit` only writes it
     data = load_config(DataConfig, REPO / QUICKSTART_DATA)
     info = shipped["data_info"]
     assert (data.points_method, data.num_points, data.rate_hz) == (info["points_method"], info["num_points"], info["rate_hz"])
-    # the Makefile's main job simulates that store, writes that prior and adds fast's two PointNets to it
+    # the Makefile's main job simulates that store and runs fast's recipe on it
     make = (REPO / "Makefile").read_text()
     job = make[make.index("\nquickstart:"):make.index("\ntest:")]
     store = re.search(r"^QS_DATA := (\S+)$", make, re.M).group(1)
-    assert store == prior["data"]["store"]
-    assert QUICKSTART_DATA in job and QUICKSTART_PRIOR in job
-    assert re.search(r"fit-outcome .*--pointnet --num-points 64 --widths 32 64 128", job)
-    assert re.search(r"fit-topple --pointnet --num-points 64", job)
+    assert QUICKSTART_DATA in job and re.search(r"physdyn recipe fast --data \$\(QS_DATA\)", job)
+    assert store.endswith(".zarr")
 
 
 @pytest.mark.slow  # builds a wheel, makes a venv and predicts (about half a minute)

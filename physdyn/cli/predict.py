@@ -7,6 +7,7 @@ import json
 import sys
 import warnings
 from pathlib import Path
+from typing import Any
 
 from physdyn.errors import PhysdynError
 
@@ -19,15 +20,21 @@ examples:
   physdyn predict my_mug.obj --lin-vel 1.2 0 0 --ang-vel 0 0 3 --seconds 4 --out mug.json
   physdyn predict my_mug.obj --lin-vel 1.2 0 0 --ang-vel 0 0 3 --compare-sim --render mug.gif
   physdyn predict part.stl --scale 0.001 --lin-vel 0.8 0.2 0 --ang-vel 0 0 0 --checkpoint runs/quickstart/best.ckpt --out part.csv
+  physdyn predict my_mug.obj --lin-vel 1.2 0 0 --ang-vel 0 0 3 --samples 32 --out mug.npz --plot mug.png
   physdyn predict --batch requests.jsonl --out-dir predictions/
 
 --batch reads one JSON object per line, e.g.
   {"mesh": "mug.obj", "lin_vel": [1.2, 0, 0], "ang_vel": [0, 0, 3], "seconds": 4, "out": "mug.json"}
-(optional keys: orientation_xyzw, scale, compare_sim, render). Paths in a line are relative to the
+(optional keys: orientation_xyzw, scale, compare_sim, render; for a distribution samples, uncertainty (a
+preset name or a mapping such as {"speed_rel": 0.05}), seed, plot). Paths in a line are relative to the
 requests file's folder (mesh) and to --out-dir (out, render). A bad line is reported with its number and
 the others still run; the exit status is 2 if any line failed. Output format: docs/predict.md."""
 
-BATCH_KEYS = {"mesh", "lin_vel", "ang_vel", "seconds", "out", "orientation_xyzw", "scale", "compare_sim", "render"}
+BATCH_KEYS = {"mesh", "lin_vel", "ang_vel", "seconds", "out", "orientation_xyzw", "scale", "compare_sim", "render",
+              "samples", "uncertainty", "seed", "plot"}
+# --*-sd flag -> UncertaintyConfig key (docs/conventions.md, "Uncertainty of a push")
+SPREAD_FLAGS = (("speed_sd", "speed_rel"), ("direction_sd_deg", "direction_deg"), ("spin_sd", "spin_rel"),
+                ("spin_sd_abs", "spin_abs"), ("friction_sd", "friction_rel"))
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -64,6 +71,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fps", type=float, default=15.0, help="frames per second of --render (default: %(default)s)")
     p.add_argument("--batch", metavar="REQUESTS.jsonl", help="predict every request of a JSONL file (see below)")
     p.add_argument("--out-dir", metavar="DIR", help="with --batch: folder for the output files")
+    d = p.add_argument_group("a distribution of outcomes (docs/distributions.md)")
+    d.add_argument("--samples", type=int, metavar="N", help="roll out N pushes sampled around the given one and write "
+                   "their distribution (.npz or .json): topple probability, final position and turn quantiles, regions")
+    d.add_argument("--uncertainty", metavar="PRESET", help="how well the push is known: none, low or default (3 %%; "
+                   "the default with --samples)")
+    d.add_argument("--speed-sd", type=float, metavar="X", help="relative spread of the post-push speed (instead of a preset; "
+                   "unset spreads from 'default')")
+    d.add_argument("--direction-sd-deg", type=float, metavar="X", help="spread of its direction about the vertical, degrees")
+    d.add_argument("--spin-sd", type=float, metavar="X", help="relative spread of each angular velocity axis, times |w|")
+    d.add_argument("--spin-sd-abs", type=float, metavar="X", help="absolute spread of each angular velocity axis, rad/s")
+    d.add_argument("--friction-sd", type=float, metavar="X", help="relative spread of friction (not varied by physdyn's "
+                   "models, which predict at the friction they were trained at)")
+    d.add_argument("--seed", type=int, default=0, help="seed of the sampled pushes (default: %(default)s)")
+    d.add_argument("--plot", metavar="FILE.png", help="with --samples: a plot of the final positions with their 50 %% and 90 %% regions")
     p.add_argument("--device", default="cpu", help="where the model runs: cpu, cuda or auto (default: %(default)s)")
     p.set_defaults(func=run, parser=p)
 
@@ -83,7 +104,32 @@ def run(args: argparse.Namespace) -> int:
         args.parser.error(f"missing {', '.join(missing)} (or use --batch REQUESTS.jsonl --out-dir DIR)")
     if args.out_dir:
         args.parser.error("--out-dir is for --batch; pass --out FILE for one mesh")
+    if args.samples is not None:
+        return run_distribution(args, uncertainty_from_flags(args))
+    given = [f"--{name.replace('_', '-')}" for name in ("uncertainty", "plot", *(f for f, _ in SPREAD_FLAGS))
+             if getattr(args, name) is not None]
+    if given:
+        args.parser.error(f"{', '.join(given)} describe a distribution: add --samples N")
     return run_one(args)
+
+
+def uncertainty_from_flags(args: argparse.Namespace):
+    """--uncertainty PRESET, or the --*-sd flags as a mapping (unset keys from 'default'); checked here, so a
+    bad spread fails before any work: a one-line ConfigError."""
+    from physdyn.config.uncertainty import resolve_uncertainty
+
+    spreads = {key: getattr(args, flag) for flag, key in SPREAD_FLAGS if getattr(args, flag) is not None}
+    if spreads and args.uncertainty is not None:
+        raise PhysdynError("pass --uncertainty PRESET or the --*-sd spreads, not both")
+    flags = {f"config key 'uncertainty.{key}'": f"--{flag.replace('_', '-')}" for flag, key in SPREAD_FLAGS}
+    flags["config key '--uncertainty'"] = "--uncertainty"
+    try:
+        return resolve_uncertainty(spreads or args.uncertainty or "default", "--uncertainty" if not spreads else "uncertainty")
+    except PhysdynError as exc:  # name the flag the user typed, not the config key
+        text = str(exc)
+        for key, flag in flags.items():
+            text = text.replace(key, flag)
+        raise PhysdynError(text) from None
 
 
 def print_mesh_notes(notes: list, prefix: str = "") -> None:
@@ -127,10 +173,41 @@ def run_one(args: argparse.Namespace) -> int:
     return 0
 
 
+def run_distribution(args: argparse.Namespace, uncertainty: Any) -> int:
+    from physdyn.cli.predict_distribution import check_outputs, write_outputs
+    from physdyn.pipeline.distribution import check_samples, describe
+    from physdyn.predict.body import prepare_body
+    from physdyn.predict.predictor import as_vector, check_orientation, check_seconds, load_predictor
+
+    # Every check that needs no model comes first, so bad input fails fast and writes nothing.
+    samples = check_samples(args.samples)
+    lin = as_vector(args.lin_vel, "--lin-vel")
+    ang = as_vector(args.ang_vel, "--ang-vel")
+    check_seconds(args.seconds)
+    orientation = check_orientation(args.orientation)
+    if args.compare_sim:
+        raise PhysdynError("--compare-sim simulates one push; drop it with --samples (benchmarks/distributions.py "
+                           "compares distributions with PyBullet ensembles)")
+    check_outputs(args.out, args.render, args.plot, args.overwrite)
+    with warnings.catch_warnings(record=True) as notes:
+        warnings.simplefilter("always")
+        body = prepare_body(args.mesh, args.scale)
+        predictor = load_predictor(args.checkpoint, device=args.device)
+        result = predictor.predict_distribution(body, lin, ang, args.seconds, uncertainty, samples, args.seed, orientation)
+    print_mesh_notes(notes)
+    print(describe(result))
+    for path in write_outputs(result, body, (args.out, args.render, args.plot), args.overwrite):
+        print(f"wrote {path}")
+    if not args.out:
+        print("nothing written; pass --out FILE (.npz or .json) to save the samples and the summary")
+    return 0
+
+
 def run_batch(args: argparse.Namespace) -> int:
     """Three passes: read and check every line (a bad line is reported and skipped), roll the good ones out
     together (``Predictor.predict_many``: one batch, meshes prepared once), write each line's files."""
 
+    from physdyn.cli.predict_distribution import predict_request, write_outputs
     from physdyn.predict.prediction_files import write_prediction
     from physdyn.predict.predictor import load_predictor
 
@@ -159,16 +236,25 @@ def run_batch(args: argparse.Namespace) -> int:
         except Exception as exc:  # one broken request must not stop the others
             report(number, exc)
     results: dict[int, dict] = {}
-    if good:
+    with warnings.catch_warnings(record=True):  # mesh notes were printed per line as each mesh was read
+        warnings.simplefilter("always")
+        for r in [r for r in good if "samples" in r]:  # each line's samples are one batch of their own
+            try:
+                results[r["number"]] = predict_request(predictor, r)
+            except Exception as exc:
+                report(r["number"], exc)
+    good = [r for r in good if r["number"] in results or "samples" not in r]
+    plain = [r for r in good if "samples" not in r]
+    if plain:
         with warnings.catch_warnings(record=True):  # mesh notes were printed per line as each mesh was read
             warnings.simplefilter("always")
             try:
-                batch = predictor.predict_many([r["body"] for r in good], [r["lin_vel"] for r in good],
-                                               [r["ang_vel"] for r in good], [r["seconds"] for r in good],
-                                               [r["orientation"] for r in good], compare_sim=[r["compare_sim"] for r in good])
-                results = {r["number"]: res for r, res in zip(good, batch)}
+                batch = predictor.predict_many([r["body"] for r in plain], [r["lin_vel"] for r in plain],
+                                               [r["ang_vel"] for r in plain], [r["seconds"] for r in plain],
+                                               [r["orientation"] for r in plain], compare_sim=[r["compare_sim"] for r in plain])
+                results.update({r["number"]: res for r, res in zip(plain, batch)})
             except Exception:  # a request the batch cannot take: predict each on its own to name it
-                for r in good:
+                for r in plain:
                     try:
                         results[r["number"]] = predictor.predict(r["body"], r["lin_vel"], r["ang_vel"], r["seconds"],
                                                                  r["orientation"], compare_sim=r["compare_sim"])
@@ -180,8 +266,11 @@ def run_batch(args: argparse.Namespace) -> int:
         if r["number"] not in results:
             continue
         try:
-            written = [write_prediction(results[r["number"]], r["out"], overwrite=args.overwrite)]
-            if r["render"] is not None:
+            if "samples" in r:
+                written = write_outputs(results[r["number"]], r["body"], (r["out"], r["render"], r["plot"]), args.overwrite)
+            else:
+                written = [write_prediction(results[r["number"]], r["out"], overwrite=args.overwrite)]
+            if r["render"] is not None and "samples" not in r:
                 from physdyn.viz.render import render_animation
 
                 written.append(render_animation(r["body"], results[r["number"]], r["render"], fps=args.fps, overwrite=args.overwrite))
@@ -246,6 +335,13 @@ def _read_request(line: str, number: int, base, out_dir, args, bodies: dict) -> 
         "seconds": check_seconds(req.get("seconds", 3.0)),
         "orientation": check_orientation(req.get("orientation_xyzw")),
     }
+    if "samples" in req:
+        from physdyn.cli.predict_distribution import read_distribution_request
+
+        plot = _inside(out_dir, str(req["plot"]), "plot", number) if req.get("plot") else None
+        read_distribution_request(req, request, plot, args.overwrite)
+    elif {"uncertainty", "seed", "plot"} & set(req):
+        raise PhysdynError(f"{', '.join(sorted({'uncertainty', 'seed', 'plot'} & set(req)))} describe a distribution: add \"samples\"")
     key = (str(mesh.resolve()), float(scale))
     if key not in bodies:
         with warnings.catch_warnings(record=True) as notes:

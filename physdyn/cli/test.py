@@ -41,6 +41,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "body's mass properties (the cloud_sim baseline: 'just running the simulator' on what the "
                         "model sees; about a minute for 1,200 pushes, plus its one-step errors)")
     p.add_argument("--overwrite", action="store_true", help="replace a report already in --out")
+    d = p.add_argument_group("distribution scores (a store with an ensemble: docs/evaluation.md)")
+    d.add_argument("--samples", type=int, metavar="N", help="pushes sampled around each push (default: 32)")
+    d.add_argument("--uncertainty", metavar="PRESET",
+                   help="what the samples are drawn from: none, low or default (default: the store's ensemble's)")
+    d.add_argument("--no-distribution", action="store_true", help="skip the distribution scores")
     p.set_defaults(func=run, parser=p)
 
 
@@ -52,12 +57,16 @@ def run(args: argparse.Namespace) -> int:
     if args.warm_start < 0:
         raise PhysdynError(f"--warm-start must be >= 0, got {args.warm_start}")
     check_report_target(args.out, args.overwrite)
+    distribution = None if args.no_distribution else _distribution_options(args)
     model, data = checkpoint_and_store(args.checkpoint, args.data, stages=True)
     baselines = ["stay_put", "coulomb_slide", *(["cloud_sim"] if args.cloud_sim else []),
                  *(load_checkpoint(c) for c in args.baseline_checkpoint)]
     result = compare(model, data, baselines, split=args.split, warm_start=args.warm_start, categories=args.categories,
                      keep_trajectories=not args.no_viewer, progress=lambda line: print(f"test: {line}", file=sys.stderr, flush=True))
     kept = result["results"][result["model"]].pop("trajectories", None)
+    block = None if distribution is None else _distribution(model, data, args, distribution)
+    if block is not None:
+        result["distribution"] = block
     paths = write_report(result, args.out, overwrite=args.overwrite)
     if kept is not None:
         paths["viewer"] = _write_viewer(result, kept, data, f"{args.out}/{VIEWER_FILE}", args.overwrite)
@@ -67,8 +76,39 @@ def run(args: argparse.Namespace) -> int:
     print(f"{result['model']} on {head['count']} non-toppling {args.split} sequences: "
           f"position {head['position']:.4g} m/step, final position (median) {head['final_position_m_median']:.4g} m")
     print(result["verdict"])
+    if block is not None:
+        f, d = block["forecast"], block["deterministic"]
+        print(f"distribution of {block['samples']} samples on {block['pushes']} pushes: final position energy score "
+              f"{f['position_es_cm']:.3g} cm (one roll-out {d['position_es_cm']:.3g}, floor {f['position_floor_cm']:.3g}), "
+              f"orientation {f['orientation_es_deg']:.3g} deg (floor {f['orientation_floor_deg']:.3g}), "
+              f"topple Brier {f['brier']:.3g} (floor {f['brier_floor']:.3g}), ECE {f['ece']:.3g}")
     print(f"wrote {', '.join(str(p) for p in paths.values())}")
     return 0
+
+
+def _distribution_options(args: argparse.Namespace) -> dict:
+    """--samples and --uncertainty, checked before anything runs."""
+    from physdyn.config.uncertainty import resolve_uncertainty
+    from physdyn.eval.distribution_eval import DEFAULT_SAMPLES
+    from physdyn.pipeline.distribution import check_samples
+
+    return {"samples": check_samples(DEFAULT_SAMPLES if args.samples is None else args.samples),
+            "uncertainty": None if args.uncertainty is None else resolve_uncertainty(args.uncertainty, "--uncertainty")}
+
+
+def _distribution(model, data: str, args: argparse.Namespace, options: dict) -> dict | None:
+    """The distribution block on an ensemble store; None, with a line where one was asked for, on another."""
+    from physdyn.data.store import load_store
+    from physdyn.eval.distribution_eval import evaluate_distribution, has_ensemble
+
+    store = load_store(data)
+    if not has_ensemble(store):
+        if args.samples is not None or args.uncertainty is not None:
+            print(f"test: no distribution scores: {data} holds no ensemble (`physdyn simulate` with ensemble.members=K "
+                  "writes one)", file=sys.stderr)
+        return None
+    print(f"test: scoring {options['samples']} sampled pushes per push against the ensemble", file=sys.stderr, flush=True)
+    return evaluate_distribution(model, store, args.split, args.categories, options["samples"], options["uncertainty"])
 
 
 def _write_viewer(result: dict, kept: dict, data: str, path: str, overwrite: bool):

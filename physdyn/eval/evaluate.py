@@ -19,7 +19,7 @@ from physdyn.data.windows import frame_targets, store_spin_inertia, store_world_
 from physdyn.errors import PhysdynError
 from physdyn.eval import metrics as M
 from physdyn.eval.baselines import Baseline, predictor_name, resolve_predictor
-from physdyn.eval.rollout import DELTA_KEYS, RolloutOptions, RolloutResult, as_pipeline, rollout, teacher_forced
+from physdyn.eval.rollout import DELTA_KEYS, STATE_KEYS, RolloutOptions, RolloutResult, as_pipeline, rollout, teacher_forced
 
 GROUPS = ("non_toppling", "toppling", "all")
 
@@ -123,38 +123,41 @@ def predict_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, truth: 
                      batch_size: int = 256, seed: int = 0) -> RolloutResult:
     """Roll ``predictor`` out over ``sims`` for the horizon of ``truth`` (from ``gather_truth``)."""
     steps = truth["delta_position"].shape[1]
+    p0, q0, v0, w0 = (truth[key][:, 0] for key in STATE_KEYS)
+    if isinstance(predictor, Baseline):
+        return _concat([predictor.rollout(p0[sl], q0[sl], v0[sl], w0[sl], steps, truth["friction"][sl], store.rate_hz,
+                                          **_shapes(predictor, store, sims[sl])) for sl in _chunks(len(sims), batch_size)])
+    k = min(int(warm_start), steps)
+    warm = (truth["linear_velocity"][:, 1:k + 1], truth["angular_velocity"][:, 1:k + 1]) if k else None
+    return store_rollouts(predictor, store, sims, (q0, p0, v0, w0), steps, warm, batch_size, seed)
+
+
+def store_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, start: tuple, steps: int,
+                   warm: tuple[np.ndarray, np.ndarray] | None = None, batch_size: int = 256, seed: int = 0) -> RolloutResult:
+    """A model (``Pipeline`` or bare network) rolled out ``steps`` from ``start`` = (q0 (B, 4), p0, v0, w0 (B, 3)),
+    row b on the body and cloud of ``sims[b]`` (repeats allowed); warm: true velocities of steps 1..K, (B, K, 3) each."""
     rng = np.random.default_rng(seed)
-    pipeline = None if isinstance(predictor, Baseline) else as_pipeline(predictor)
-    topple, correction = (None, None) if pipeline is None else (pipeline.topple, pipeline.correction)
+    pipeline = as_pipeline(predictor)
+    topple, correction, parts = pipeline.topple, pipeline.correction, []
     # a PointNet classifier reads its kind of cloud, given whole (thinned by it), and so does a PointNet correction
-    wants = topple.cloud.method if topple is not None and topple.strict_cloud else None
+    wants = topple.cloud.method if topple.strict_cloud else None
     if wants is not None:
         _check_store_clouds(store, "topple classifier", wants, topple.cloud.count)
-    if correction is not None and correction.strict_cloud:
+    if correction.strict_cloud:
         _check_store_clouds(store, "outcome correction", correction.cloud.method or store.points_method, correction.cloud.count)
-    model_reads = "surface" if pipeline is None else pipeline.points_method
-    if wants is not None and model_reads != wants:  # one store cannot feed both: the model would get the wrong kind
-        raise PhysdynError(f"the model reads {model_reads} clouds and its topple classifier {wants} ones; a store holds "
-                           "one kind, so `physdyn test` cannot feed both: measure it through `predict` "
+    if wants is not None and pipeline.points_method != wants:  # one store cannot feed both: the model would get the wrong kind
+        raise PhysdynError(f"the model reads {pipeline.points_method} clouds and its topple classifier {wants} ones; a "
+                           "store holds one kind, so `physdyn test` cannot feed both: measure it through `predict` "
                            f"(benchmarks/frontier.py), or give the classifier a model trained on {wants} clouds")
-    parts = []
     for sl in _chunks(len(sims), batch_size):
-        p0, q0 = truth["com_position"][sl, 0], truth["orientation_xyzw"][sl, 0]
-        v0, w0 = truth["linear_velocity"][sl, 0], truth["angular_velocity"][sl, 0]
-        if isinstance(predictor, Baseline):
-            parts.append(predictor.rollout(p0, q0, v0, w0, steps, truth["friction"][sl], store.rate_hz,
-                                           **_shapes(predictor, store, sims[sl])))
-            continue
-        k = min(int(warm_start), steps)
-        warm = (truth["linear_velocity"][sl, 1:k + 1], truth["angular_velocity"][sl, 1:k + 1]) if k else None
+        q0, p0, v0, w0 = (x[sl] for x in start)
         points = _model_points(store, sims[sl], pipeline.network.num_points, rng)
         simulates = topple.cloud is not None or pipeline.motion.reads_stage_cloud
-        topple_points = None
-        if simulates:  # the classifier's cloud size (else the whole cloud), drawn from a stream of its own: the model's draws stay as they were
-            topple_points = _model_points(store, sims[sl], None if topple.cloud is None else topple.given_count,
-                                          np.random.default_rng([seed, sl.start]))
+        # the classifier's cloud size (else the whole cloud), drawn from a stream of its own: the model's draws stay as they were
+        topple_points = _model_points(store, sims[sl], None if topple.cloud is None else topple.given_count,
+                                      np.random.default_rng([seed, sl.start])) if simulates else None
         parts.append(rollout(pipeline, points, q0, p0, v0, w0, steps, RolloutOptions(
-            warm, topple_points_body=topple_points, spin_inertia=store_spin_inertia(store, sims[sl], q0),
+            warm and (warm[0][sl], warm[1][sl]), topple_points_body=topple_points, spin_inertia=store_spin_inertia(store, sims[sl], q0),
             body_inertia=store_world_inertia(store, sims[sl], q0) if simulates else None)))
     return _concat(parts)
 

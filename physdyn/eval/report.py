@@ -5,6 +5,8 @@
 - ``rollout_error_vs_time.png``: median accumulated position and rotation error per step with the
   interquartile band, model beside the baselines, cut where fewer than a quarter of the sequences still run
 - ``errors_per_category.png``: mean roll-out errors per category (supplement Fig. 6)
+- on an ensemble store, with the comparison's ``distribution`` (``physdyn.eval.distribution_eval``): its table
+  in ``report.md`` and ``topple_reliability.png``, the reliability diagram of the forecast's topple probability
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from physdyn.errors import PhysdynError
-from physdyn.files import check_writable, jsonable, save_figure_atomic, write_text_atomic
+from physdyn.files import atomic_output, check_writable, jsonable, save_figure_atomic, write_text_atomic
 
 from physdyn.eval.metrics import ERROR_KEYS
 
@@ -45,7 +47,34 @@ def markdown(comparison: dict) -> str:
         cells += [fmt_number(row["final_position_m_median"]), fmt_number(row["final_rotation_deg_median"]), fmt_number(row["topple_accuracy"], 3)]
         lines.append("| " + " | ".join(cells) + " |")
     lines += ["", comparison["verdict"], ""]
+    if comparison.get("distribution"):
+        lines += distribution_markdown(comparison["distribution"], comparison["model"])
     return "\n".join(lines)
+
+
+def distribution_markdown(block: dict, model: str) -> list[str]:
+    """The lines of report.md's distribution section: the sampled and the deterministic forecast beside the
+    floors (``physdyn.eval.distribution_eval.evaluate_distribution``'s block)."""
+    spread = ", ".join(f"{k}={v:g}" for k, v in block["uncertainty"].items())
+    source = "the store's ensemble's" if block["uncertainty_source"] == "store" else "given"
+    lines = ["## Distribution scores", "",
+             f"Final outcomes after {block['seconds']:.2f} s of {block['pushes']} pushes, each against its "
+             f"{block['members']} reference members; {block['samples']} sampled pushes each (uncertainty {source}: "
+             f"{spread}; friction not varied). Lower is better, except coverage: the share of members inside the "
+             "forecast's 50 % and 90 % regions. Floor: a perfect forecast's expected score. Definitions: "
+             "docs/evaluation.md.", ""]
+    head = ["forecast", "position ES (cm)", "orientation ES (deg)", "Brier", "ECE", "coverage 50 %", "coverage 90 %"]
+    lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    rows = [(f"{model}, {block['samples']} samples", block["forecast"]), (f"{model}, deterministic", block["deterministic"])]
+    for name, s in rows:
+        cells = [fmt_number(s[k]) for k in ("position_es_cm", "orientation_es_deg", "brier", "ece")]
+        cells += ["n/a" if s[k] is None else fmt_number(100 * s[k], 3) + " %" for k in ("coverage_50", "coverage_90")]
+        lines.append("| " + " | ".join([name, *cells]) + " |")
+    floor = block["forecast"]
+    lines.append("| " + " | ".join(["floor (perfect forecast)", fmt_number(floor["position_floor_cm"]),
+                                    fmt_number(floor["orientation_floor_deg"]), fmt_number(floor["brier_floor"]), "0",
+                                    "50 %", "90 %"]) + " |")
+    return lines + ["", f"![topple reliability]({RELIABILITY_FILE})", ""]
 
 
 CURVE_MIN_SHARE = 0.25  # error-vs-time plots stop where fewer than this share of the sequences still run...
@@ -155,6 +184,7 @@ def plot_errors_per_category(comparison: dict, path: Path) -> None:
 REPORT_FILES = {"metrics": "metrics.json", "report": "report.md",
                 "error_vs_time": "rollout_error_vs_time.png", "per_category": "errors_per_category.png"}
 VIEWER_FILE = "viewer.html"  # written beside the report by `physdyn test` (physdyn.viz.store_scenes)
+RELIABILITY_FILE = "topple_reliability.png"  # with a distribution block only
 
 
 def check_report_target(out_dir: str | Path, overwrite: bool = False) -> None:
@@ -164,7 +194,7 @@ def check_report_target(out_dir: str | Path, overwrite: bool = False) -> None:
     if Path(out_dir).is_file():
         raise PhysdynError(f"--out {out_dir} is a file; pass a folder for the report")
     check_writable(out_dir, "--out")
-    existing = [name for name in (*REPORT_FILES.values(), VIEWER_FILE) if (Path(out_dir) / name).exists()]
+    existing = [name for name in (*REPORT_FILES.values(), VIEWER_FILE, RELIABILITY_FILE) if (Path(out_dir) / name).exists()]
     if existing and not overwrite:
         raise PhysdynError(f"{out_dir} already holds a report ({existing[0]}); pass --overwrite to replace it or choose another --out")
 
@@ -178,6 +208,21 @@ def write_report(comparison: dict, out_dir: str | Path, overwrite: bool = False)
     # Each file whole or not at all; metrics.json last, so a folder that has it has the whole report.
     plot_error_vs_time(comparison, paths["error_vs_time"])
     plot_errors_per_category(comparison, paths["per_category"])
+    if comparison.get("distribution"):
+        paths["reliability"] = plot_topple_reliability(comparison["distribution"], out / RELIABILITY_FILE)
+    else:  # a replaced report's diagram would describe another evaluation
+        (out / RELIABILITY_FILE).unlink(missing_ok=True)
     write_text_atomic(paths["report"], markdown(comparison))
     write_text_atomic(paths["metrics"], json.dumps(jsonable(comparison, nan_as_null=True), indent=1))
     return paths
+
+
+def plot_topple_reliability(block: dict, path: Path) -> Path:
+    """The sampled forecast's reliability diagram (``block["reliability"]["forecast"]``) as a PNG, whole or not at all."""
+    from physdyn.eval.scores import ReliabilityDiagram, plot_reliability_diagram
+
+    diagram = ReliabilityDiagram(**{k: np.asarray(v, dtype=float) for k, v in block["reliability"]["forecast"].items()})
+    with atomic_output(path, suffix=".png") as tmp:
+        plot_reliability_diagram(diagram, tmp, title=f"topple probability, {block['samples']} samples "
+                                                      f"(ECE {diagram.expected_calibration_error:.3f})")
+    return path

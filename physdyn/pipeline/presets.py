@@ -69,7 +69,7 @@ def read_preset(path: str | Path) -> PredictorPreset:
         raise ConfigError(f"{path}: not a predictor preset ({type(exc).__name__})") from None
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: a predictor preset is a mapping of name, weights, motion, topple and correction")
-    unknown = sorted(set(data) - {"name", "weights", *KINDS})
+    unknown = sorted(set(data) - {"name", "weights", "recipe", *KINDS})
     if unknown:
         raise ConfigError(f"{path}: unknown key '{unknown[0]}'; a predictor preset has name, weights, {', '.join(KINDS)}")
     if "motion" not in data:
@@ -79,6 +79,25 @@ def read_preset(path: str | Path) -> PredictorPreset:
     if weights is not None and not Path(str(weights)).is_absolute() and (path.parent / str(weights)).is_file():
         weights = str(path.parent / str(weights))  # a file beside the preset
     return PredictorPreset(name=str(data.get("name") or path.stem), weights=None if weights is None else str(weights), **stages)
+
+
+def preset_recipe(spec: str | Path) -> list:
+    """The recipe of a shipped preset's name or a preset file: the commands that train its stages
+    (``physdyn.pipeline.recipe``); a one-line ``ConfigError`` for a preset without one."""
+    import yaml
+
+    from physdyn.pipeline.recipe import read_recipe
+
+    path = Path(spec)
+    if not path.is_file():
+        path = preset_file(str(spec))
+    if not path.is_file():
+        raise ConfigError(f"no predictor preset '{spec}'; the shipped ones: {', '.join(shipped_presets())}")
+    read_preset(path)  # the preset itself must be well formed
+    recipe = (yaml.safe_load(path.read_text()) or {}).get("recipe")
+    if recipe is None:
+        raise ConfigError(f"{path}: this preset has no recipe: nothing of it is trained (a preset with one: fast, bundled)")
+    return read_recipe(recipe, str(path))
 
 
 def _stage_config(value: Any, where: str) -> StageConfig:
@@ -142,9 +161,12 @@ def checkpoint_preset(raw: dict, weights: str) -> PredictorPreset:
     """The preset of a checkpoint of `physdyn fit`: its network (after a simulated start where its
     ``model.sim_seconds`` says so), the topple classifier `fit-topple` added (else the head) and the
     correction `fit-outcome` added (else none)."""
-    seconds = float(raw["hyper_parameters"]["config"].get("model", {}).get("sim_seconds") or 0.0)
-    return PredictorPreset(name=str(weights), weights=str(weights),
-                           motion=StageConfig("simulated_start" if seconds > 0 else "network"),
+    model = raw["hyper_parameters"]["config"].get("model", {})
+    seconds = float(model.get("sim_seconds") or 0.0)
+    # no network steps the motion of a contact prior written as a checkpoint (`physdyn recipe fast`'s first step)
+    prior_alone = (model.get("predictor") or {}).get("name") == "none" and model.get("prior") == "contact"
+    motion = "simulated_start" if seconds > 0 else "contact_prior" if prior_alone else "network"
+    return PredictorPreset(name=str(weights), weights=str(weights), motion=StageConfig(motion),
                            topple=StageConfig(_topples.stage_name(raw.get(_topples.CHECKPOINT_KEY))),
                            correction=StageConfig(_corrections.stage_name(raw.get(_corrections.CHECKPOINT_KEY))))
 

@@ -1,6 +1,8 @@
 """Prediction files: one trajectory per file, JSON by default, .npz or .csv by the extension, with the same
 keys (docs/conventions.md, "Prediction output"; layout in docs/predict.md). ``write_prediction`` writes one
 whole or not at all; ``read_prediction`` reads any of the three back into the dict ``Predictor.predict`` returns.
+A distribution (``Predictor.predict_distribution``: ``kind`` "distribution") is written and read by the same
+two functions as .json or .npz (docs/distributions.md): nested figures as ``key.sub`` in .npz.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from physdyn.errors import PredictionError
 from physdyn.files import atomic_output, check_writable, jsonable
 
 OUTPUT_EXTENSIONS = (".json", ".npz", ".csv")
+DISTRIBUTION_EXTENSIONS = (".npz", ".json")  # a distribution's (N, T, 3) arrays have no one-row-per-step table
 STEP_KEYS = ("time", "com_position", "orientation_xyzw", "linear_velocity", "angular_velocity", "topple_probability")
 # CSV column suffixes of the per-step vectors.
 _COMPONENTS = {"com_position": "xyz", "orientation_xyzw": "xyzw", "linear_velocity": "xyz", "angular_velocity": "xyz"}
@@ -68,14 +71,16 @@ def write_prediction(result: dict[str, Any], path: str | Path, overwrite: bool =
     Written to a temporary file in the same folder and renamed into place, so a reader never sees half a
     file. Refuses an existing ``path`` unless ``overwrite``.
     """
-    path = check_output_path(path, overwrite)
+    distribution = is_distribution(result)
+    path = check_output_path(path, overwrite, DISTRIBUTION_EXTENSIONS if distribution else OUTPUT_EXTENSIONS,
+                             "distribution output" if distribution else "output")
     path.parent.mkdir(parents=True, exist_ok=True)
     ext = path.suffix.lower()
     with atomic_output(path) as tmp, open(tmp, "wb") as fh:
         if ext == ".json":
             fh.write(json.dumps(jsonable(result), indent=1).encode())
         elif ext == ".npz":
-            np.savez(fh, **_npz_arrays(result))
+            np.savez(fh, **(_dotted(result) if distribution else _npz_arrays(result)))
         else:
             fh.write(_csv_text(result).encode())
         if not overwrite and path.exists():
@@ -149,6 +154,8 @@ def read_prediction(path: str | Path) -> dict[str, Any]:
         flat = _read_csv(path)
     else:
         raise PredictionError(f"{path}: unsupported extension '{ext}'; use one of {', '.join(OUTPUT_EXTENSIONS)}")
+    if str(flat.get("kind", "")) == "distribution":
+        return _distribution(flat)
     out = {}
     for key, value in flat.items():
         base = key.split("simulated_", 1)[-1]
@@ -189,3 +196,51 @@ def _read_csv(path: Path) -> dict[str, Any]:
                 arr = table[:, [index[c] for c in cols]]
                 flat[prefix + key] = arr[:, 0] if len(cols) == 1 else arr
     return flat
+
+
+def is_distribution(result: dict[str, Any]) -> bool:
+    """Whether ``result`` is a distribution of ``Predictor.predict_distribution`` (N sampled trajectories)."""
+    return str(result.get("kind", "")) == "distribution"
+
+
+def _dotted(result: dict[str, Any], prefix: str = "") -> dict[str, np.ndarray]:
+    """Nested figures -> one array per ``key.sub`` (npz cannot nest); a missing figure (None) is left out."""
+    out: dict[str, np.ndarray] = {}
+    for key, value in result.items():
+        if isinstance(value, dict):
+            out.update(_dotted(value, f"{prefix}{key}."))
+        elif value is not None:
+            out[f"{prefix}{key}"] = np.asarray(value)
+    return out
+
+
+_DISTRIBUTION_SCALARS = {"kind": str, "mesh": str, "checkpoint": str, "rate_hz": float, "mesh_scale": float,
+                         "samples": int, "seed": int, "turn_deg_mean": float}
+
+
+def _distribution(flat: dict[str, Any]) -> dict[str, Any]:
+    """A distribution file's keys (``key.sub`` from .npz, nested from .json) -> ``predict_distribution``'s dict:
+    arrays float64 (``toppled`` bool), quantile levels as ints, a region left out as None."""
+
+    def value(key: str, v: Any) -> Any:
+        if isinstance(v, dict):
+            return {int(k) if str(k).isdigit() else k: value(str(k), x) for k, x in v.items()}
+        if key in _DISTRIBUTION_SCALARS:
+            return _DISTRIBUTION_SCALARS[key](v)
+        if key == "toppled":
+            return np.asarray(v, dtype=bool)
+        if key in ("angle_deg", "level") or np.ndim(v) == 0 and not isinstance(v, (list, np.ndarray)):
+            return float(v)
+        return np.asarray(v, dtype=np.float64)
+
+    nested: dict[str, Any] = {}
+    for key, v in flat.items():
+        parts = key.split(".")
+        where = nested
+        for part in parts[:-1]:
+            where = where.setdefault(part, {})
+        where[parts[-1]] = v
+    out = {key: value(key, v) for key, v in nested.items()}
+    for key in ("region_50", "region_90"):
+        out.setdefault(key, None)
+    return out

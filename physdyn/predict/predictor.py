@@ -13,7 +13,7 @@ Arrays in a result are float64 numpy arrays: T = round(seconds * rate_hz) + 1 st
 
 from __future__ import annotations
 
-import math
+import dataclasses
 import os
 import warnings
 from typing import Any, Sequence
@@ -21,99 +21,28 @@ from typing import Any, Sequence
 import numpy as np
 import torch
 
+from physdyn.config.uncertainty import resolve_uncertainty
 from physdyn.errors import PhysdynError, PredictionError, PredictionWarning
 from physdyn.eval.rollout import RolloutOptions, as_pipeline, prepared_batch
 from physdyn.geometry.mass import vertical_inertia, world_inertia_per_mass
-from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_rotvec
+from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_rotvec, tilt_angle
 from physdyn.models.checkpoint_file import SHIPPED
+from physdyn.pipeline.distribution import check_samples, sample_requests, summarise
 from physdyn.pipeline.engine import Pipeline, run_stages
 from physdyn.pipeline.presets import build_pipeline, load_pipeline, preset_file, read_preset
 from physdyn.pipeline.stages import BodyCache
 from physdyn.predict.body import PreparedBody, preparation_key, prepare_body
+from physdyn.predict.request_checks import (MAX_ANGULAR_SPEED, MAX_LINEAR_SPEED, MAX_SECONDS, _boolean, _orientations,  # noqa: F401
+                                            _per_request, _per_request_values, as_vector, check_orientation, check_seconds)
 from physdyn.predict.simulator import SIMULATOR_NAME, simulate_from_state
-from physdyn.sim.trajectory import resting_com_positions
+from physdyn.sim.trajectory import TOPPLE_ANGLE, resting_com_positions
 
 BUNDLED_CHECKPOINT = SHIPPED["bundled"]
 # The default: the shipped model no PyBullet step beats on both accuracy and cost, on new meshes
 # (docs/performance.md); "bundled", which simulates inside each prediction, is dominated by PyBullet at 1/240 s.
 DEFAULT_MODEL = "fast"
 DEFAULT_CHECKPOINT = SHIPPED[DEFAULT_MODEL]
-MAX_LINEAR_SPEED = 50.0  # m/s; training pushes are 0.5-2 m/s
-MAX_ANGULAR_SPEED = 500.0  # rad/s
-MAX_SECONDS = 600.0  # a pushed object rests within seconds; far longer only allocates
 PREPARED_CACHE_SIZE = 256  # meshes whose preparation a Predictor keeps (a 10k-face one holds about 0.5 MB)
-
-
-# --------------------------------------------------------------------------------------------------
-# Input checks
-# --------------------------------------------------------------------------------------------------
-def as_vector(value: Any, name: str, length: int = 3) -> np.ndarray:
-    """``value`` as a finite float64 vector of ``length``; a one-line ``PredictionError`` naming ``name``."""
-    try:
-        vec = np.asarray(value, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
-        raise PredictionError(f"{name} must be {length} numbers, got {value!r}") from None
-    if np.ndim(value) > 1 or vec.size != length:
-        raise PredictionError(f"{name} must be {length} numbers, got {vec.size} ({_short(value)})")
-    if not np.isfinite(vec).all():
-        raise PredictionError(f"{name} must be finite, got {_short(value)}; pass {length} real numbers")
-    return vec
-
-
-def check_seconds(seconds: Any) -> float:
-    try:
-        s = float(seconds)
-    except (TypeError, ValueError):
-        raise PredictionError(f"seconds must be a number, got {seconds!r}") from None
-    if not math.isfinite(s) or s <= 0:
-        raise PredictionError(f"seconds must be a positive number, got {seconds!r}; e.g. --seconds 3")
-    if s > MAX_SECONDS:
-        raise PredictionError(f"seconds must be at most {MAX_SECONDS:g} (objects come to rest within a few), got {seconds!r}")
-    return s
-
-
-ZERO_QUATERNION = "orientation (x, y, z, w) is the zero quaternion; pass a rotation, e.g. 0 0 0 1"
-
-
-def check_orientation(orientation_xyzw: Any) -> np.ndarray:
-    """Unit quaternion (x, y, z, w) from ``orientation_xyzw``; identity (the mesh frame as is) for None."""
-    if orientation_xyzw is None:
-        return np.array([0.0, 0.0, 0.0, 1.0])
-    q = as_vector(orientation_xyzw, "orientation (x, y, z, w)", 4)
-    norm = float(np.linalg.norm(q))
-    if norm < 1e-9:
-        raise PredictionError(ZERO_QUATERNION)
-    return q / norm
-
-
-def _per_request(value: Any, count: int, name: str, length: int = 3) -> np.ndarray:
-    """(count, length) finite float64 from one vector for every request or one row per request."""
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise PredictionError(f"{name}: expected {length} numbers or {count} rows of {length}, got {_short(value)}") from None
-    if arr.shape == (length,):
-        return np.tile(as_vector(arr, name, length), (count, 1))
-    if arr.shape != (count, length):
-        raise PredictionError(f"{name}: expected {length} numbers or {count} rows of {length}, got shape {arr.shape}")
-    finite = np.isfinite(arr).all(axis=1)
-    if not finite.all():  # the first bad row's own message (checking every row one by one costs 20 us a push)
-        i = int(np.argmin(finite))
-        as_vector(arr[i], f"{name} of request {i + 1}", length)
-    return arr
-
-
-def _orientations(orientation_xyzw: Any, count: int) -> np.ndarray:
-    """(count, 4) unit quaternions: ``check_orientation`` of one value for every request or one row per
-    request, all rows at once (each row's norm as ``np.linalg.norm`` of the row alone computes it: a batched
-    dot product, so the same numbers to the bit)."""
-    if orientation_xyzw is None:
-        return np.tile(check_orientation(None), (count, 1))
-    q = _per_request(orientation_xyzw, count, "orientation (x, y, z, w)", 4)
-    norm = np.sqrt(np.matmul(q[:, None, :], q[:, :, None])[:, 0, 0])
-    if (norm < 1e-9).any():
-        raise PredictionError(ZERO_QUATERNION)
-    return q / norm[:, None]
 
 
 def _posed(bodies: list[PreparedBody], q0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -133,26 +62,17 @@ def _posed(bodies: list[PreparedBody], q0: np.ndarray) -> tuple[np.ndarray, np.n
     return p0, spin, inertia
 
 
-def _per_request_values(value: Any, count: int, name: str) -> list:
-    """One scalar for all requests, or a sequence of ``count``."""
-    if isinstance(value, (str, bytes)) or np.ndim(value) == 0:
-        return [value] * count
-    values = list(value)
-    if len(values) != count:
-        raise PredictionError(f"{name}: expected one value or {count}, got {len(values)}")
-    return values
-
-
-def _boolean(value: Any, name: str) -> bool:
-    """A real boolean: the strings "no" or "false" are not read as true."""
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    raise PredictionError(f"{name} must be true or false, got {value!r}")
-
-
-def _short(value: Any) -> str:
-    text = " ".join(str(v) for v in np.ravel(value)) if np.ndim(value) else str(value)
-    return text if len(text) <= 60 else text[:57] + "..."
+def _velocities(lin_vel: Any, ang_vel: Any, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """(count, 3) post-push velocities, each checked finite and within what a tabletop object survives."""
+    v0 = _per_request(lin_vel, count, "linear velocity (lin_vel)")
+    w0 = _per_request(ang_vel, count, "angular velocity (ang_vel)")
+    for values, name, limit, unit in ((v0, "linear velocity (lin_vel)", MAX_LINEAR_SPEED, "m/s"),
+                                      (w0, "angular velocity (ang_vel)", MAX_ANGULAR_SPEED, "rad/s")):
+        fastest = float(np.linalg.norm(values, axis=1).max())
+        if fastest > limit:
+            raise PredictionError(f"{name}: {fastest:g} {unit} is beyond any push a tabletop object survives "
+                                  f"(at most {limit:g} {unit}); check the units")
+    return v0, w0
 
 
 # --------------------------------------------------------------------------------------------------
@@ -230,42 +150,14 @@ class Predictor:
             return []
         if int(chunk_size) < 1:
             raise PredictionError(f"chunk_size must be at least 1, got {chunk_size}")
-        v0 = _per_request(lin_vel, R, "linear velocity (lin_vel)")
-        w0 = _per_request(ang_vel, R, "angular velocity (ang_vel)")
-        for values, name, limit, unit in ((v0, "linear velocity (lin_vel)", MAX_LINEAR_SPEED, "m/s"),
-                                          (w0, "angular velocity (ang_vel)", MAX_ANGULAR_SPEED, "rad/s")):
-            fastest = float(np.linalg.norm(values, axis=1).max())
-            if fastest > limit:
-                raise PredictionError(f"{name}: {fastest:g} {unit} is beyond any push a tabletop object survives "
-                                      f"(at most {limit:g} {unit}); check the units")
+        v0, w0 = _velocities(lin_vel, ang_vel, R)
         steps = [self.num_steps(s) for s in _per_request_values(seconds, R, "seconds")]
         scales = _per_request_values(scale, R, "scale")
         compare = [_boolean(c, "compare_sim") for c in _per_request_values(compare_sim, R, "compare_sim")]
         q0 = _orientations(orientation_xyzw, R)
         bodies = self._bodies(meshes, scales)
-        p0, spin_inertia, body_inertia = _posed(bodies, q0)
-        points = np.stack([body.points_body(self.num_points, self.points_method) for body in bodies])
-        # a hull_surface cloud's first points are its mesh's hull vertices: thinning it needs no qhull
-        hulls = None
-        if self.points_method == "hull_surface":
-            hulls = np.array([body.hull_count(self.num_points) for body in bodies])
-        # None where no stage reads another cloud, or where it is the motion's own (`fast`: one cloud for all)
-        spec = self.model.stage_cloud()
-        topple_points = None if spec is None else np.stack([body.points_body(spec.count, spec.method) for body in bodies])
         results: list[dict[str, Any] | None] = [None] * R
-        # Longest first, then one roll-out per chunk at the chunk's longest length: a roll-out is causal (each
-        # step reads only earlier ones), so a shorter request's steps are exactly its own roll-out's and the
-        # steps past its end are cut off. One roll-out per length cost 18 roll-outs for 60 requests.
-        order = np.argsort(-np.asarray(steps), kind="stable")
-        for lo in range(0, R, int(chunk_size)):
-            idx = order[lo : lo + int(chunk_size)]
-            longest = max(steps[r] for r in idx)
-            options = RolloutOptions(topple_points_body=None if topple_points is None else topple_points[idx],
-                                     spin_inertia=spin_inertia[idx], body_inertia=body_inertia[idx],
-                                     lengths=np.array([steps[r] for r in idx]), with_changes=False,
-                                     hull_counts=None if hulls is None else hulls[idx])
-            batch = prepared_batch(points[idx], (q0[idx], p0[idx], v0[idx], w0[idx]), longest - 1, options, self._prepared)
-            rolled = run_stages(self.model, batch)
+        for idx, rolled in self._rollouts(bodies, (q0, v0, w0), steps, chunk_size):
             for b, r in enumerate(idx):
                 T = steps[r]
                 out = {k: None if v is None else v[:T] for k, v in rolled.sequence(b).items()}
@@ -277,6 +169,75 @@ class Predictor:
             results[r]["simulated"] = self._result(sim, sim["topple_label"].astype(np.float64),
                                                    bool(sim["topple_label"].any()), bodies[r], SIMULATOR_NAME)
         return results  # type: ignore[return-value]
+
+    def predict_distribution(self, mesh: Any, lin_vel: Any, ang_vel: Any, seconds: float = 3.0, uncertainty: Any = "default",
+                             samples: int = 32, seed: int = 0, orientation_xyzw: Any = None) -> dict[str, Any]:
+        """The outcomes of a push known only roughly: ``samples`` pushes drawn around (``lin_vel``, ``ang_vel``)
+        from ``uncertainty`` (a preset name: none, low, default; a mapping of ``UncertaintyConfig``'s keys; or
+        an ``UncertaintyConfig``) with seed ``seed``, rolled out as one batch of ``mesh`` (prepared once; pass a
+        ``PreparedBody`` for a scale other than 1) resting in ``orientation_xyzw``. Friction is not varied:
+        the model's friction is the one it was trained at (docs/distributions.md).
+
+        Returns ``com_position`` (N, T, 3), ``orientation_xyzw`` (N, T, 4), ``sample_lin_vel`` and
+        ``sample_ang_vel`` (N, 3), ``toppled`` (N,) each sample's verdict, ``topple_probability`` (T,) the
+        probability of having toppled by each step, the summary figures of
+        ``physdyn.pipeline.distribution.summarise``, and ``samples``, ``seed``, ``uncertainty`` (the resolved
+        values), ``lin_vel``, ``ang_vel``, ``rate_hz``, ``time`` (T,), ``com_mesh``, ``mesh``,
+        ``mesh_scale``, ``checkpoint``, ``kind`` ("distribution"). Each sample's trajectory is the one
+        ``predict_many`` gives for its push, to the bit; with zero uncertainty each equals ``predict``'s.
+        """
+        config = resolve_uncertainty(uncertainty)
+        count = check_samples(samples)
+        v0 = as_vector(lin_vel, "linear velocity (lin_vel)")
+        w0 = as_vector(ang_vel, "angular velocity (ang_vel)")
+        T = self.num_steps(seconds)
+        q0 = np.tile(check_orientation(orientation_xyzw), (count, 1))
+        lin, ang, _ = sample_requests(v0, w0, None, config, count, seed)
+        v, w = _velocities(lin[0], ang[0], count)
+        body = self._bodies([mesh], [1.0])[0]
+        p, q = np.empty((count, T, 3)), np.empty((count, T, 4))
+        toppled, by_step = np.zeros(count, dtype=bool), np.zeros((count, T))
+        # one body, one length: the batches are the samples themselves, in order
+        for idx, rolled in self._rollouts([body] * count, (q0, v, w), [T] * count, 1024):
+            p[idx], q[idx], toppled[idx] = rolled.com_position, rolled.orientation_xyzw, rolled.toppled
+            # each sample's own probabilities where the model has a topple output, else the 45 degree rule
+            by_step[idx] = (rolled.topple_probability if rolled.topple_probability is not None
+                            else tilt_angle(q0[idx, None], rolled.orientation_xyzw) > TOPPLE_ANGLE)
+        out = {"kind": "distribution", "rate_hz": self.rate_hz, "time": np.arange(T, dtype=np.float64) / self.rate_hz,
+               "com_position": p, "orientation_xyzw": q, "sample_lin_vel": v, "sample_ang_vel": w, "toppled": toppled}
+        out.update(summarise(p, q, by_step))
+        out.update(samples=count, seed=int(seed), uncertainty=dataclasses.asdict(config), lin_vel=v0, ang_vel=w0,
+                   com_mesh=np.array(body.spec.com_mesh, dtype=np.float64), mesh=body.name, mesh_scale=body.scale,
+                   checkpoint=self.name)
+        return out
+
+    def _rollouts(self, bodies: list[PreparedBody], start: tuple, steps: list[int], chunk_size: int):
+        """The roll-outs of R requests as batches: yields (idx, ``RolloutResult``) per chunk of at most
+        ``chunk_size`` requests, idx (B,) the requests of its rows. start: q0 (R, 4), v0, w0 (R, 3); steps: each
+        request's T. ``predict_many`` and ``predict_distribution`` both roll out through here."""
+        q0, v0, w0 = start
+        p0, spin_inertia, body_inertia = _posed(bodies, q0)
+        points = np.stack([body.points_body(self.num_points, self.points_method) for body in bodies])
+        # a hull_surface cloud's first points are its mesh's hull vertices: thinning it needs no qhull
+        hulls = None
+        if self.points_method == "hull_surface":
+            hulls = np.array([body.hull_count(self.num_points) for body in bodies])
+        # None where no stage reads another cloud, or where it is the motion's own (`fast`: one cloud for all)
+        spec = self.model.stage_cloud()
+        topple_points = None if spec is None else np.stack([body.points_body(spec.count, spec.method) for body in bodies])
+        # Longest first, then one roll-out per chunk at the chunk's longest length: a roll-out is causal (each
+        # step reads only earlier ones), so a shorter request's steps are exactly its own roll-out's and the
+        # steps past its end are cut off. One roll-out per length cost 18 roll-outs for 60 requests.
+        order = np.argsort(-np.asarray(steps), kind="stable")
+        for lo in range(0, len(bodies), int(chunk_size)):
+            idx = order[lo : lo + int(chunk_size)]
+            longest = max(steps[r] for r in idx)
+            options = RolloutOptions(topple_points_body=None if topple_points is None else topple_points[idx],
+                                     spin_inertia=spin_inertia[idx], body_inertia=body_inertia[idx],
+                                     lengths=np.array([steps[r] for r in idx]), with_changes=False,
+                                     hull_counts=None if hulls is None else hulls[idx])
+            batch = prepared_batch(points[idx], (q0[idx], p0[idx], v0[idx], w0[idx]), longest - 1, options, self._prepared)
+            yield idx, run_stages(self.model, batch)
 
     def forget_meshes(self) -> None:
         """Forget every mesh prepared so far (this predictor's body cache: preparations, thinned clouds, the

@@ -3,7 +3,7 @@
 (function () {
   "use strict";
   const DATA = JSON.parse(document.getElementById("physdyn-data").textContent);
-  const COLOURS = { predicted: "#4682b4", reference: "#d9732e", ground: "#c8c8c8" };
+  const COLOURS = { predicted: "#4682b4", reference: "#d9732e", ground: "#c8c8c8", fan: "#7b68ee" };
   const view3d = document.getElementById("view3d");
   const plot2d = document.getElementById("plot2d");
   const slider = document.getElementById("slider");
@@ -89,6 +89,29 @@
              line: { color: colour, width: 5, dash: dash }, hoverinfo: "name", showlegend: false };
   }
 
+  // A distribution's fan: every sample's final pose as one translucent mesh (its vertices and faces repeated
+  // per sample) and every sample's path as one line broken by gaps. Static: the slider moves the central sample.
+  function fanTraces() {
+    const fan = scene.fan;
+    if (!fan) return [];
+    const nv = scene.mesh.vertices.length;
+    const xs = [], ys = [], zs = [], fi = [], fj = [], fk = [];
+    const px = [], py = [], pz = [];
+    fan.com_position.forEach((path, s) => {
+      const pose = posed({ com_position: path, orientation_xyzw: fan.orientation_xyzw[s] }, path.length - 1);
+      xs.push(...pose[0]); ys.push(...pose[1]); zs.push(...pose[2]);
+      for (const f of scene.mesh.faces) { fi.push(f[0] + s * nv); fj.push(f[1] + s * nv); fk.push(f[2] + s * nv); }
+      for (const p of path) { px.push(p[0]); py.push(p[1]); pz.push(p[2]); }
+      px.push(null); py.push(null); pz.push(null);
+    });
+    return [
+      { type: "mesh3d", name: "sampled final poses", x: xs, y: ys, z: zs, i: fi, j: fj, k: fk, color: COLOURS.fan,
+        opacity: 0.15, flatshading: true, hoverinfo: "name", showlegend: false },
+      { type: "scatter3d", mode: "lines", name: "sampled paths", x: px, y: py, z: pz,
+        line: { color: COLOURS.fan, width: 2 }, opacity: 0.4, hoverinfo: "name", showlegend: false },
+    ];
+  }
+
   function draw3d() {
     const lo = scene.bounds.lo, hi = scene.bounds.hi;
     const ground = {
@@ -103,6 +126,7 @@
       meshTrace(scene.predicted.label, COLOURS.predicted, 1.0, posed(scene.predicted, 0)),
       lineTrace((ref ? ref.label : "reference") + " path", COLOURS.reference, "dash", ref ? trail(ref, 0) : [[], [], []]),
       lineTrace(scene.predicted.label + " path", COLOURS.predicted, "solid", trail(scene.predicted, 0)),
+      ...fanTraces(),  // after the four traces show() restyles
     ];
     const axis = (a, title) => ({ range: [lo[a], hi[a]], title: title, autorange: false });
     const layout = {
@@ -123,7 +147,7 @@
     const traces = [];
     const prob = scene.predicted.topple_probability;
     if (prob) {
-      traces.push({ x: time.slice(0, prob.length), y: prob, name: "topple probability", mode: "lines",
+      traces.push({ x: time.slice(0, prob.length), y: prob, name: scene.fan ? "topple probability (of the samples)" : "topple probability", mode: "lines",
                     line: { color: COLOURS.predicted } });
     }
     if (scene.reference) {
@@ -196,7 +220,8 @@
     const topples = (traj) => (traj.toppled === null ? "" : traj.toppled ? " (topples)" : " (stays up)");
     document.getElementById("legend").innerHTML =
       `<span class="swatch" style="background:${COLOURS.predicted}"></span>${scene.predicted.label}${topples(scene.predicted)}` +
-      (ref ? `<span class="swatch" style="background:${COLOURS.reference};opacity:0.5"></span>${ref.label}${topples(ref)}, ghosted` : "");
+      (ref ? `<span class="swatch" style="background:${COLOURS.reference};opacity:0.5"></span>${ref.label}${topples(ref)}, ghosted` : "") +
+      (scene.fan ? `<span class="swatch" style="background:${COLOURS.fan};opacity:0.4"></span>${scene.fan.com_position.length} sampled final poses` : "");
     document.getElementById("notes").textContent = scene.notes.join(" ");
     return Promise.all([draw3d(), draw2d()]).then(() => show(0));
   }

@@ -8,7 +8,10 @@ file, not one mesh copy per frame, which keeps a 15-scene report page to a few M
 The embedded data (``<script type="application/json" id="physdyn-data">``) holds, per scene, the mesh in
 mesh coordinates and ``com_mesh``, and the trajectories with the prediction file's keys
 (``com_position``, ``orientation_xyzw``, ``topple_probability``, ``toppled``): a mesh vertex x is drawn at
-R (x - com_mesh) + com_position, as the conventions say. ``read_viewer_data`` reads it back.
+R (x - com_mesh) + com_position, as the conventions say. A scene of a distribution (``predict_distribution``)
+also holds ``fan``: ``com_position`` (N, T, 3) and ``orientation_xyzw`` (N, T, 4) of its N samples, drawn as
+their paths and their final poses (translucent), beside its central sample; its ``predicted`` topple
+probability is the distribution's. ``read_viewer_data`` reads it back.
 """
 
 from __future__ import annotations
@@ -72,6 +75,7 @@ class ViewerScene:
     predicted: Trajectory
     reference: Trajectory | None = None
     notes: list[str] = field(default_factory=list)
+    fan: dict[str, np.ndarray] | None = None  # a distribution's samples: com_position (N, T, 3), orientation_xyzw (N, T, 4)
 
     def as_json(self) -> dict[str, Any]:
         vertices, faces = decimate(np.asarray(self.vertices, np.float64), np.asarray(self.faces, np.int64), MAX_FACES)
@@ -87,11 +91,18 @@ class ViewerScene:
             "rate_hz": float(self.rate_hz),
             "mesh": {"vertices": _rounded(vertices), "faces": np.asarray(faces, int).tolist()},
             "com_mesh": _rounded(self.com_mesh),
-            "bounds": _bounds(vertices, np.asarray(self.com_mesh, np.float64), trajectories),
+            "bounds": _bounds(vertices, np.asarray(self.com_mesh, np.float64), trajectories + self._fan_points()),
             "predicted": self.predicted.as_json(),
             "reference": None if self.reference is None else self.reference.as_json(),
             "notes": list(self.notes),
+            "fan": None if self.fan is None else {k: _rounded(v) for k, v in self.fan.items()},
         }
+
+    def _fan_points(self) -> list[Trajectory]:
+        """Every state of the samples as one trajectory, so the page's bounds hold their paths."""
+        if self.fan is None:
+            return []
+        return [Trajectory("samples", self.fan["com_position"].reshape(-1, 3), self.fan["orientation_xyzw"].reshape(-1, 4))]
 
 
 def _rounded(x: Any, digits: int = 6) -> Any:
@@ -125,6 +136,8 @@ def scene_from_prediction(result: dict[str, Any], mesh: Any, title: str | None =
     path, a ``trimesh.Trimesh`` or a ``PreparedBody``, at the scale it was predicted at)."""
 
     m = mesh_to_draw(mesh, 1.0)
+    if result.get("kind") == "distribution":
+        return _distribution_scene(result, m, title)
     sim = result.get("simulated")
     name = title or Path(str(result.get("mesh", "prediction"))).name
     return ViewerScene(
@@ -136,6 +149,24 @@ def scene_from_prediction(result: dict[str, Any], mesh: Any, title: str | None =
                              result.get("topple_probability"), result.get("toppled")),
         reference=None if not sim else Trajectory("simulation", sim["com_position"], sim["orientation_xyzw"],
                                                   None, sim.get("toppled")),
+    )
+
+
+def _distribution_scene(result: dict[str, Any], m: Any, title: str | None) -> ViewerScene:
+    """A distribution's scene: its central sample (the one ending nearest the mean final position) moves under
+    the slider, with the distribution's topple probability, and the fan of all samples."""
+    p, q = np.asarray(result["com_position"], np.float64), np.asarray(result["orientation_xyzw"], np.float64)
+    central = int(np.argmin(np.linalg.norm(p[:, -1] - p[:, -1].mean(axis=0), axis=1)))
+    probability = np.asarray(result["topple_probability"], np.float64)
+    return ViewerScene(
+        title=title or Path(str(result.get("mesh", "distribution"))).name,
+        rate_hz=float(result["rate_hz"]),
+        vertices=np.asarray(m.vertices), faces=np.asarray(m.faces),
+        com_mesh=np.asarray(result["com_mesh"], np.float64),
+        predicted=Trajectory("central sample", p[central], q[central], probability, None),
+        notes=[f"{len(p)} sampled pushes ({result.get('checkpoint', 'model')}): their paths and final poses are "
+               f"drawn translucent; topple probability {probability[-1]:.2f} by the end."],
+        fan={"com_position": p, "orientation_xyzw": q},
     )
 
 

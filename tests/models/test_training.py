@@ -235,7 +235,7 @@ def test_every_preset_loads_and_builds():
         cfg = load_experiment_config(path)
         model = DynamicsModel(cfg, norm)
         # the real-world model has no topple head, nor does the contact prior alone (it never topples)
-        assert model.predicts_topple == (path.stem not in ("realworld", "contact_prior", "quickstart_fast")), path.stem
+        assert model.predicts_topple == (path.stem not in ("realworld", "contact_prior")), path.stem
     paper = DynamicsModel(load_experiment_config(REPO / "configs/experiment/paper.yaml"), norm)
     assert 22.5e6 < sum(p.numel() for p in paper.parameters()) < 23.3e6
     quick = load_experiment_config(QUICKSTART)
