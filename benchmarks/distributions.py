@@ -1,7 +1,7 @@
 """The frontier of distributions: outcome distributions for a push known only roughly, physdyn's against PyBullet
 ensembles, scored against perturbed re-simulations at the conventions' step, every cost measured in one run.
 
-    python benchmarks/distributions.py                       # both sets, 20 meshes x 3 pushes each (about 15 minutes)
+    python benchmarks/distributions.py                       # both sets, 20 meshes x 3 pushes each (about 10 minutes)
     python benchmarks/distributions.py --quick               # a smoke check: 2 meshes x 2 pushes per set
     python benchmarks/distributions.py --sets wheel --meshes 40 --pushes 5 --out reports/distributions/wheel.md
 
@@ -36,7 +36,8 @@ Scores (``physdyn.eval.scores.score_pushes``, means over pushes): the energy sco
 displacement from step 0 (cm) and of the final orientation (chordal degrees), fair estimator; the Brier score of
 toppling by the horizon and the ECE over the set's pooled pushes; the coverage of the forecast's 50 % and 90 %
 regions of the final position (3 samples or more). The floor row is a perfect forecast's expected score.
-Verdicts: the bars of "Done when" in docs/distributions.md, against the predictor's default sample count.
+Verdicts: the forecast's targets (docs/distributions.md, "Where it stands against PyBullet ensembles") for
+``predict_distribution``'s default sample count; the meshes that carry most of its mean position score.
 """
 
 from __future__ import annotations
@@ -303,7 +304,7 @@ def ratio(ours: float, theirs: float) -> float:
 
 
 def verdicts(set_name: str, rows: list[dict]) -> list[str]:
-    """The bars of "Done when" for the default distribution forecast (``predict_distribution``'s default N)."""
+    """The targets of the default distribution forecast (``predict_distribution``'s default N), one line each."""
     n = default_samples()
     ours = next(r for r in rows if r["kind"] == "physdyn" and r["count"] == n)
     pyb = [r for r in rows if r["kind"] == "pybullet"]
@@ -378,7 +379,7 @@ def plot(results: dict[str, dict], path: Path) -> None:
             ax.plot([r["ms"] for r in ours], [r[key] for r in ours], "s", color="black", label="physdyn distribution, N = 16/32/64")
             for r in ours:
                 ax.annotate(str(r["count"]), (r["ms"], r[key]), textcoords="offset points", xytext=(4, 4), fontsize=7)
-            for kind, marker, text in (("point", "x", "physdyn one prediction"), ("spread", "D", "one prediction + fixed spread")):
+            for kind, marker, text in (("spread", "D", "one prediction + fixed spread"), ("point", "x", "physdyn one prediction")):
                 r = next(r for r in rows if r["kind"] == kind)
                 ax.plot([r["ms"]], [r[key]], marker, color="crimson" if kind == "spread" else "gray", label=text)
             if key == "coverage_90":
