@@ -254,6 +254,7 @@ def test_feedback_targets_lead_from_the_fed_velocities_to_the_true_next_ones(qui
     torch.testing.assert_close(si[..., 6:9], batch["delta_position"])
 
 
+@pytest.mark.slow  # a training run long enough to learn (about 20 s)
 def test_tiny_training_run_lowers_the_rollout_error(tiny_store, tmp_path):
     """The recipe of the bundled model on the tiny store: roll-out errors on the training pushes fall."""
     lightning.seed_everything(0)

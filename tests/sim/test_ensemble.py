@@ -116,6 +116,7 @@ def test_an_ensemble_leaves_the_pushes_as_they_were(store, tmp_path):
     assert "ensemble" not in plain.attrs and not any(k.startswith("ensemble/") for k in plain.extra)
 
 
+@pytest.mark.slow  # three simulations of the store, one of them interrupted (about 6 s)
 def test_same_members_whatever_the_worker_count_and_after_resume(store, tmp_path):
     generate_dataset(tiny_config(), str(tmp_path / "w2.zarr"), workers=2, progress=False)
     assert_same_store(load_store(store), load_store(tmp_path / "w2.zarr"))
