@@ -161,3 +161,17 @@ def test_a_browser_shows_the_mesh_the_plane_and_the_controls(prediction, tmp_pat
     simulated = (r - b > 50) & (r > 150)  # the orange ghost of the simulation
     ground = (abs(r - g) < 6) & (abs(g - b) < 6) & (r > 170) & (r < 225)  # the grey plane
     assert predicted.sum() > 500 and simulated.sum() > 200 and ground.sum() > 5000, (predicted.sum(), simulated.sum(), ground.sum())
+
+
+@pytest.mark.slow  # a browser start and software WebGL, as above
+@pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's chromium (apt-get install chromium); .ci/run installs it")
+def test_a_browser_shows_a_distributions_fan_and_its_topple_probability(prediction, tmp_path):
+    dist = tmp_path / "dist.npz"
+    made = run_cli("predict", str(prediction / "box_mm.obj"), "--scale", "0.001", "--lin-vel", "1.5", "0", "0",
+                   "--ang-vel", "0", "0", "4", "--seconds", "1.5", "--samples", "8", "--out", str(dist))
+    assert made.returncode == 0, made.stderr
+    page = tmp_path / "dist.html"
+    assert run_cli("view", str(dist), "--out", str(page)).returncode == 0
+    dom = _chromium("--user-data-dir=" + str(tmp_path / "profile"), "--dump-dom", page.as_uri()).stdout
+    assert 'data-ready="1"' in dom  # the page's script ran to the end without an error
+    assert "<canvas" in dom and 'id="slider"' in dom
