@@ -36,8 +36,31 @@ class HeadTopple(ToppleStage):
         return np.concatenate([np.zeros((batch.size, 1)), motion.topple_probability], axis=1)
 
 
+class _FittedTopple(ToppleStage):
+    """A classifier `physdyn fit-topple` wrote into the weights: built from their entry, given the step-0 cloud,
+    the push and the bodies' inertia."""
+
+    classifier: Any
+
+    @classmethod
+    def build(cls, config: Any, source: Any) -> ToppleStage:
+        return cls.from_entry(source.part(CHECKPOINT_KEY, "topple"))
+
+    @classmethod
+    def from_entry(cls, entry: dict[str, Any]) -> ToppleStage:
+        raise NotImplementedError
+
+    def _predict(self, batch: PreparedBatch, cloud: np.ndarray) -> np.ndarray:
+        inertia = None if batch.body_inertia is None else np.asarray(batch.body_inertia).reshape(-1, 3, 3)
+        return self.classifier.predict(cloud, batch.v0, batch.w0, batch.steps, inertia)
+
+    def _given_cloud(self, batch: PreparedBatch) -> np.ndarray:
+        """The stage's own cloud where the batch has one, else the motion's, turned to step 0."""
+        return batch.model_cloud() if batch.stage_points_body is None else batch.step0(batch.stage_points_body)
+
+
 @TOPPLE_STAGES.register("logistic")
-class LogisticTopple(ToppleStage):
+class LogisticTopple(_FittedTopple):
     """``ToppleClassifier``: given its own cloud size (``classifier.num_points``; None: the default stage cloud),
     surface points; with ``physics`` it simulates each push's hull for a second."""
 
@@ -46,10 +69,6 @@ class LogisticTopple(ToppleStage):
         self.simulates = bool(classifier.physics)
         self.cloud = CloudSpec(int(classifier.num_points or DEFAULT_NUM_POINTS), "surface")
         self.given_count = classifier.num_points
-
-    @classmethod
-    def build(cls, config: Any, source: Any) -> "LogisticTopple":
-        return cls.from_entry(source.part(CHECKPOINT_KEY, "topple"))
 
     @classmethod
     def from_entry(cls, entry: dict[str, Any]) -> "LogisticTopple":
@@ -61,13 +80,11 @@ class LogisticTopple(ToppleStage):
         return HeadTopple() if self.simulates else self
 
     def run(self, batch: PreparedBatch, motion: Motion) -> np.ndarray:
-        cloud = batch.model_cloud() if batch.stage_points_body is None else batch.step0(batch.stage_points_body)
-        return self.classifier.predict(cloud, batch.v0, batch.w0, batch.steps,
-                                       None if batch.body_inertia is None else np.asarray(batch.body_inertia).reshape(-1, 3, 3))
+        return self._predict(batch, self._given_cloud(batch))
 
 
 @TOPPLE_STAGES.register("pointnet")
-class PointNetTopple(ToppleStage):
+class PointNetTopple(_FittedTopple):
     """``PointNetToppleClassifier``: given ``hull_surface`` clouds of the size it was fitted on, or of the size
     it thins from (``thinned_to``), thinned by the batch's body cache before they are turned."""
 
@@ -79,10 +96,6 @@ class PointNetTopple(ToppleStage):
         self.given_count = self.cloud.count
 
     @classmethod
-    def build(cls, config: Any, source: Any) -> "PointNetTopple":
-        return cls.from_entry(source.part(CHECKPOINT_KEY, "topple"))
-
-    @classmethod
     def from_entry(cls, entry: dict[str, Any]) -> "PointNetTopple":
         from physdyn.models.topple_pointnet import PointNetToppleClassifier  # torch networks: only where used
 
@@ -92,9 +105,8 @@ class PointNetTopple(ToppleStage):
         if self.classifier.thinned_to:
             cloud = batch.step0(batch.thinned(batch.given_points_body, self.classifier.thinned_to))
         else:
-            cloud = batch.model_cloud() if batch.stage_points_body is None else batch.step0(batch.stage_points_body)
-        return self.classifier.predict(cloud, batch.v0, batch.w0, batch.steps,
-                                       None if batch.body_inertia is None else np.asarray(batch.body_inertia).reshape(-1, 3, 3))
+            cloud = self._given_cloud(batch)
+        return self._predict(batch, cloud)
 
 
 def classifier_from_dict(d: dict[str, Any]) -> Any:
