@@ -23,8 +23,13 @@ import torch
 
 from physdyn.models.heads.base import NUM_CHANGES
 from physdyn.models.predictors.lstm import LSTMPredictor
+from physdyn.models.prior_rollout import prior_rollout
 from physdyn.models.priors import RESIDUAL_MASKS
 from physdyn.models.rotations import quat_multiply, rotvec_to_quat
+
+
+# the prior alone on the CPU rolls out on numpy (physdyn.models.prior_rollout); the tests compare it with this loop
+PRIOR_ON_NUMPY = True
 
 
 def batch_rollout(model: Any, points: Any, linear_velocity0: Any, angular_velocity0: Any, steps: int, warm_linear: Any = None,
@@ -73,6 +78,14 @@ def batch_rollout(model: Any, points: Any, linear_velocity0: Any, angular_veloci
     # element, as the forward's strided column is: torch's vectorised kernel can differ in the last bit)
     constant = (torch.sigmoid(model.head.linear.bias[NUM_CHANGES:NUM_CHANGES + 1]).to(f64)
                 if alone and topple_out is not None else None)
+    if alone and K == 0 and device.type == "cpu" and PRIOR_ON_NUMPY:
+        # the prior on numpy: the same changes to float32 rounding, a tenth of the dispatch, ended at rest
+        out = prior_rollout(geometry.double().numpy(), v.numpy(), w.numpy(), steps, model.prior_dt,
+                            model.prior_friction, model.prior_gravity, model.config.model.contact_substeps)
+        if topple_out is not None:
+            topple_out[:] = constant
+        return {"changes": torch.from_numpy(out["changes"]), "fed": torch.from_numpy(out["fed"]),
+                "topple_probability": topple_out}
     state = None
     for t in range(steps):
         if 1 <= t <= K:

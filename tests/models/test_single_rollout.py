@@ -10,6 +10,7 @@ from physdyn.data.normalization import compute_normalization
 from physdyn.data.store import load_store
 from physdyn.data.windows import world_oriented_points
 from physdyn.eval.evaluate import gather_truth, select_sequences
+from physdyn.models import batch_rollout as batch_rollout_module
 from physdyn.models.batch_rollout import batch_rollout
 from physdyn.models.dynamics_module import DynamicsModel
 from physdyn.models.single_rollout import SingleRollout
@@ -245,6 +246,8 @@ def test_a_batch_of_the_prior_alone_skips_the_network_with_the_same_numbers(quic
     def refuse(*args, **kwargs):
         raise AssertionError("the forward ran")
 
+    # the torch loop's alone branch (without a warm start the CPU takes physdyn.models.prior_rollout instead)
+    monkeypatch.setattr(batch_rollout_module, "PRIOR_ON_NUMPY", False)
     for warm in ((None, None), (warm_v, warm_w)):
         with torch.inference_mode():
             with monkeypatch.context() as patch:
