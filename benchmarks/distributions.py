@@ -20,11 +20,13 @@ Forecasts, each drawn with its own seed (never the reference's pushes):
   the push as given (what a user runs once); K > 1 are K pushes drawn from the same uncertainty. The topple
   probability is the fraction of runs that topple.
 - physdyn: ``Predictor.predict_distribution`` with N = 16, 32, 64 samples (the predictor ``--predictor``,
-  default ``fast``); its topple probability is the forecast's own (by the last step).
+  default ``fast``, with its own distribution stage), and with N = 32 sampled pushes (the ``sampled_pushes``
+  stage) where its own stage is another; its topple probability is the forecast's own (by the last step).
 - physdyn's one prediction, as a point (N = 1), and with a fixed spread: 64 samples of its final position plus
   isotropic horizontal Gaussian noise of ``--spread-cm`` (3 cm, a constant chosen before any run: about the
   spread of a 3 % push's outcomes on the project's own shapes; the reference's median spread per set is printed
-  beside it), every sample in its one final orientation, its topple answer 0 or 1.
+  beside it), every sample in its one final orientation, its topple probability the prediction's (the point's
+  is its verdict, 0 or 1).
 
 Costs: ms of CPU per push (one core: one torch thread, one BLAS thread), each push a mesh new to the forecast,
 timed as benchmarks/frontier.py times regime (a): PyBullet builds the body (``prepare_body`` and its collision
@@ -72,6 +74,7 @@ from physdyn.config import PhysicsConfig, config_from_dict  # noqa: E402
 from physdyn.config.uncertainty import resolve_uncertainty  # noqa: E402
 from physdyn.eval.scores import score_pushes  # noqa: E402
 from physdyn.geometry.mesh_io import load_mesh  # noqa: E402
+from physdyn.pipeline.spread import DistributionStage, SampledPushes  # noqa: E402
 from physdyn.predict.predictor import Predictor  # noqa: E402
 from physdyn.sim.perturb import perturb_pushes  # noqa: E402
 from physdyn.sim.world import PhysicsWorld  # noqa: E402
@@ -81,6 +84,7 @@ REFERENCE_HZ = 960  # the conventions' physics step
 ENSEMBLE_HZ = (60, 120, 240)
 ENSEMBLE_SIZES = (1, 4, 16, 64)
 SAMPLE_COUNTS = (16, 32, 64)
+SAMPLED_PUSHES_N = 32  # the sampled_pushes stage's forecast, beside a predictor whose own stage is another
 SPREAD_SAMPLES = 64  # samples of the fixed-spread forecast
 UNCERTAINTY = "default"
 # one seed per stream: the reference's pushes, the ensembles', physdyn's (plus the push's index), the spread's
@@ -138,39 +142,53 @@ def reference(meshes: dict, req: Requests, physics: PhysicsConfig, rate_hz: floa
 # physdyn's forecasts, timed request by request after each mesh's PyBullet turn
 # --------------------------------------------------------------------------------------------------
 class PhysdynForecasts:
-    """``run(pushes)``: each push's ``predict_distribution`` at every N of ``SAMPLE_COUNTS`` and its one
-    ``predict``, each on a fresh copy of its mesh with the predictor's prepared meshes forgotten (untimed)."""
+    """``run(pushes)``: each push's ``predict_distribution`` at every N of ``SAMPLE_COUNTS`` (the predictor's own
+    distribution stage), at ``SAMPLED_PUSHES_N`` with the ``sampled_pushes`` stage where that is not its own, and
+    its one ``predict``, each on a fresh copy of its mesh with the predictor's prepared meshes forgotten (untimed)."""
 
     def __init__(self, predictor: Predictor, meshes: dict, req: Requests, repeats: int):
         self.predictor, self.meshes, self.req, self.repeats = predictor, meshes, req, repeats
+        self.variants = {"own": (predictor, SAMPLE_COUNTS)}
+        pipeline = predictor.model
+        if isinstance(getattr(pipeline, "distribution", None), DistributionStage) and not pipeline.distribution.rolls_out_samples:
+            sampled = Predictor(dataclasses.replace(pipeline, distribution=SampledPushes()), name=predictor.name,
+                                physics=predictor.physics)
+            self.variants["sampled_pushes"] = (sampled, (SAMPLED_PUSHES_N,))
         R = len(req)
-        self.samples = {n: {"disp": np.zeros((R, n, 3)), "q": np.zeros((R, n, 4)), "p": np.zeros(R)} for n in SAMPLE_COUNTS}
-        self.one = {"disp": np.zeros((R, 3)), "q": np.zeros((R, 4)), "toppled": np.zeros(R, bool)}
-        self.spent = dict.fromkeys(list(SAMPLE_COUNTS) + ["one"], 0.0)
+        self.samples = {(v, n): {"disp": np.zeros((R, n, 3)), "q": np.zeros((R, n, 4)), "p": np.zeros(R)}
+                        for v, (_, counts) in self.variants.items() for n in counts}
+        self.one = {"disp": np.zeros((R, 3)), "q": np.zeros((R, 4)), "toppled": np.zeros(R, bool), "p": np.zeros(R)}
+        self.spent = dict.fromkeys(list(self.samples) + ["one"], 0.0)
 
-    def _fresh(self, key: str):
-        self.predictor.forget_meshes()
+    def _fresh(self, key: str, predictor: Predictor):
+        predictor.forget_meshes()
         return self.meshes[key].copy()
 
     def run(self, pushes) -> None:
-        req, predictor = self.req, self.predictor
+        req = self.req
         for r in pushes:
-            seconds = req.steps[r] / predictor.rate_hz
-            for n in SAMPLE_COUNTS:
-                spent, out = best_of(self.repeats, lambda mesh, n=n: predictor.predict_distribution(
-                    mesh, req.v0[r], req.w0[r], seconds=seconds, uncertainty=UNCERTAINTY, samples=n,
-                    seed=SEEDS["physdyn"] + int(r), orientation_xyzw=req.q0[r]), lambda: self._fresh(req.mesh[r]))
-                self.spent[n] += spent
-                p = out["com_position"]
-                self.samples[n]["disp"][r] = p[:, -1] - p[:, 0]
-                self.samples[n]["q"][r] = out["orientation_xyzw"][:, -1]
-                self.samples[n]["p"][r] = out["topple_probability"][-1]
+            for variant, (predictor, counts) in self.variants.items():
+                seconds = req.steps[r] / predictor.rate_hz
+                for n in counts:
+                    spent, out = best_of(self.repeats, lambda mesh, n=n, predictor=predictor: predictor.predict_distribution(
+                        mesh, req.v0[r], req.w0[r], seconds=seconds, uncertainty=UNCERTAINTY, samples=n,
+                        seed=SEEDS["physdyn"] + int(r), orientation_xyzw=req.q0[r]),
+                        lambda predictor=predictor: self._fresh(req.mesh[r], predictor))
+                    self.spent[variant, n] += spent
+                    p = out["com_position"]
+                    self.samples[variant, n]["disp"][r] = p[:, -1] - p[:, 0]
+                    self.samples[variant, n]["q"][r] = out["orientation_xyzw"][:, -1]
+                    self.samples[variant, n]["p"][r] = out["topple_probability"][-1]
+            predictor = self.predictor
             spent, one = best_of(self.repeats, lambda mesh: predictor.predict(
-                mesh, req.v0[r], req.w0[r], seconds=seconds, orientation_xyzw=req.q0[r]), lambda: self._fresh(req.mesh[r]))
+                mesh, req.v0[r], req.w0[r], seconds=req.steps[r] / predictor.rate_hz, orientation_xyzw=req.q0[r]),
+                lambda: self._fresh(req.mesh[r], predictor))
             self.spent["one"] += spent
             self.one["disp"][r] = one["com_position"][-1] - one["com_position"][0]
             self.one["q"][r] = one["orientation_xyzw"][-1]
             self.one["toppled"][r] = one["toppled"]
+            probability = one["topple_probability"]
+            self.one["p"][r] = float(np.max(probability)) if probability is not None else float(one["toppled"])
 
 
 # --------------------------------------------------------------------------------------------------
@@ -222,10 +240,13 @@ def ensemble_rows(outs: dict, push: np.ndarray, R: int, ref: dict, rate_hz: floa
 
 
 def physdyn_rows(name: str, forecasts: PhysdynForecasts, ref: dict, spread_cm: float, seed: int) -> list[dict]:
-    """The distribution forecast at every N, the one prediction as a point and with the fixed spread."""
+    """The distribution forecast at every N (and with sampled pushes), the one prediction as a point and with the
+    fixed spread."""
     R = len(forecasts.req)
-    rows = [scored_row(f"physdyn {name}, predict_distribution", "physdyn", n, 1000 * forecasts.spent[n] / R,
-                       s["disp"], s["q"], s["p"], ref) for n, s in forecasts.samples.items()]
+    own = forecasts.predictor.model.distribution.registered_name
+    rows = [scored_row(f"physdyn {name}, predict_distribution ({own if variant == 'own' else variant})",
+                       "physdyn" if variant == "own" else "physdyn_sampled", n, 1000 * forecasts.spent[variant, n] / R,
+                       s["disp"], s["q"], s["p"], ref) for (variant, n), s in forecasts.samples.items()]
     one, ms = forecasts.one, 1000 * forecasts.spent["one"] / R
     rows.append(scored_row(f"physdyn {name}, one prediction", "point", 1, ms, one["disp"][:, None], one["q"][:, None],
                            one["toppled"].astype(float), ref))
@@ -233,7 +254,7 @@ def physdyn_rows(name: str, forecasts: PhysdynForecasts, ref: dict, spread_cm: f
     noise[..., :2] = np.random.default_rng(seed).normal(0.0, spread_cm / 100.0, (R, SPREAD_SAMPLES, 2))
     rows.append(scored_row(f"physdyn {name}, one prediction + {spread_cm:g} cm Gaussian", "spread", SPREAD_SAMPLES, ms,
                            one["disp"][:, None] + noise, np.repeat(one["q"][:, None], SPREAD_SAMPLES, axis=1),
-                           one["toppled"].astype(float), ref))
+                           one["p"], ref))
     return rows
 
 
@@ -376,9 +397,12 @@ def plot(results: dict[str, dict], path: Path) -> None:
                 name = line[0]["name"].replace("PyBullet ", "")
                 ax.plot([r["ms"] for r in line], [r[key] for r in line], "o-", ms=4, label=f"PyBullet {name}, K = 1-64")
             ours = [r for r in rows if r["kind"] == "physdyn"]
-            ax.plot([r["ms"] for r in ours], [r[key] for r in ours], "s", color="black", label="physdyn distribution, N = 16/32/64")
+            ax.plot([r["ms"] for r in ours], [r[key] for r in ours], "s", color="black",
+                    label=f"physdyn distribution ({ours[0]['name'].split('(')[-1].rstrip(')')}), N = 16/32/64")
             for r in ours:
                 ax.annotate(str(r["count"]), (r["ms"], r[key]), textcoords="offset points", xytext=(4, 4), fontsize=7)
+            for r in (r for r in rows if r["kind"] == "physdyn_sampled"):
+                ax.plot([r["ms"]], [r[key]], "^", color="tab:purple", label=f"physdyn sampled pushes, N = {r['count']}")
             for kind, marker, text in (("spread", "D", "one prediction + fixed spread"), ("point", "x", "physdyn one prediction")):
                 r = next(r for r in rows if r["kind"] == kind)
                 ax.plot([r["ms"]], [r[key]], marker, color="crimson" if kind == "spread" else "gray", label=text)

@@ -135,6 +135,7 @@ HEADS: Registry = Registry("head", "physdyn.heads", ("physdyn.models.heads",))
 MOTION_STAGES: Registry = Registry("motion stage", "physdyn.motion_stages", ("physdyn.pipeline.motion",))
 TOPPLE_STAGES: Registry = Registry("topple stage", "physdyn.topple_stages", ("physdyn.pipeline.topple",))
 CORRECTION_STAGES: Registry = Registry("correction stage", "physdyn.correction_stages", ("physdyn.pipeline.correction",))
+DISTRIBUTION_STAGES: Registry = Registry("distribution stage", "physdyn.distribution_stages", ("physdyn.pipeline.spread",))
 
 ALL_REGISTRIES: dict[str, Registry] = {
     "shape_families": SHAPE_FAMILIES,
@@ -144,4 +145,5 @@ ALL_REGISTRIES: dict[str, Registry] = {
     "motion_stages": MOTION_STAGES,
     "topple_stages": TOPPLE_STAGES,
     "correction_stages": CORRECTION_STAGES,
+    "distribution_stages": DISTRIBUTION_STAGES,
 }

@@ -72,8 +72,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--batch", metavar="REQUESTS.jsonl", help="predict every request of a JSONL file (see below)")
     p.add_argument("--out-dir", metavar="DIR", help="with --batch: folder for the output files")
     d = p.add_argument_group("a distribution of outcomes (docs/distributions.md)")
-    d.add_argument("--samples", type=int, metavar="N", help="roll out N pushes sampled around the given one and write "
-                   "their distribution (.npz or .json): topple probability, final position and turn quantiles, regions")
+    d.add_argument("--samples", type=int, metavar="N", help="N outcomes of the push known only roughly, made by the model's "
+                   "distribution stage (fast: drawn around one roll-out with a fitted spread), and write their "
+                   "distribution (.npz or .json): topple probability, final position and turn quantiles, regions")
     d.add_argument("--uncertainty", metavar="PRESET", help="how well the push is known: none, low or default (3 %%; "
                    "the default with --samples)")
     d.add_argument("--speed-sd", type=float, metavar="X", help="relative spread of the post-push speed (instead of a preset; "
@@ -81,9 +82,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     d.add_argument("--direction-sd-deg", type=float, metavar="X", help="spread of its direction about the vertical, degrees")
     d.add_argument("--spin-sd", type=float, metavar="X", help="relative spread of each angular velocity axis, times |w|")
     d.add_argument("--spin-sd-abs", type=float, metavar="X", help="absolute spread of each angular velocity axis, rad/s")
-    d.add_argument("--friction-sd", type=float, metavar="X", help="relative spread of friction (not varied by physdyn's "
-                   "models, which predict at the friction they were trained at)")
-    d.add_argument("--seed", type=int, default=0, help="seed of the sampled pushes (default: %(default)s)")
+    d.add_argument("--friction-sd", type=float, metavar="X", help="relative spread of friction (widens fast's spread along "
+                   "the travel; a model's sampled pushes keep the friction it was trained at)")
+    d.add_argument("--seed", type=int, default=0, help="seed of the samples (default: %(default)s)")
     d.add_argument("--plot", metavar="FILE.png", help="with --samples: a plot of the final positions with their 50 %% and 90 %% regions")
     p.add_argument("--device", default="cpu", help="where the model runs: cpu, cuda or auto (default: %(default)s)")
     p.set_defaults(func=run, parser=p)

@@ -42,7 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "model sees; about a minute for 1,200 pushes, plus its one-step errors)")
     p.add_argument("--overwrite", action="store_true", help="replace a report already in --out")
     d = p.add_argument_group("distribution scores (a store with an ensemble: docs/evaluation.md)")
-    d.add_argument("--samples", type=int, metavar="N", help="pushes sampled around each push (default: 32)")
+    d.add_argument("--samples", type=int, metavar="N", help="outcomes the forecast makes of each push (default: 32)")
     d.add_argument("--uncertainty", metavar="PRESET",
                    help="what the samples are drawn from: none, low or default (default: the store's ensemble's)")
     d.add_argument("--no-distribution", action="store_true", help="skip the distribution scores")
@@ -107,7 +107,8 @@ def _distribution(model, data: str, args: argparse.Namespace, options: dict) -> 
             print(f"test: no distribution scores: {data} holds no ensemble (`physdyn simulate` with ensemble.members=K "
                   "writes one)", file=sys.stderr)
         return None
-    print(f"test: scoring {options['samples']} sampled pushes per push against the ensemble", file=sys.stderr, flush=True)
+    print(f"test: scoring the distribution forecast ({options['samples']} samples a push) against the ensemble",
+          file=sys.stderr, flush=True)
     return evaluate_distribution(model, store, args.split, args.categories, options["samples"], options["uncertainty"])
 
 

@@ -1,16 +1,17 @@
 """Proper scores of a model's distribution forecast on an ensemble store (one simulated with an ``ensemble:``
 block: docs/dataset-format.md, "Ensembles"). Definitions: docs/evaluation.md, "Distribution scores".
 
-For every selected push, N pushes are drawn around its recorded step-0 velocities
-(``physdyn.pipeline.distribution.sample_requests``) and rolled out in batches from its recorded step-0
-orientation on the store's body and cloud of its shape (``physdyn.eval.evaluate.store_rollouts``), for the
-members' horizon. The members start from that same orientation, so the samples' final orientations are
-compared with theirs as they are; positions are compared as horizontal displacements from step 0 (a member
-starts above the origin). A push's topple probability is the fraction of its samples that toppled by their
-own end (the pipeline's verdict), against each member's topple label. The deterministic forecast, one
-roll-out of the unperturbed push, is scored the same way beside it.
+For every selected push, the pipeline's distribution stage (``physdyn.pipeline.spread``) makes N outcomes from
+its recorded step-0 state on the store's body and cloud of its shape (``physdyn.eval.evaluate.store_rollouts``),
+for the members' horizon: N pushes drawn around the recorded velocities and rolled out in batches
+(``sampled_pushes``), or one roll-out and N outcomes drawn around it (``calibrated``). The members start from
+that same orientation, so the samples' final orientations are compared with theirs as they are; positions are
+compared as horizontal displacements from step 0 (a member starts above the origin). A push's topple
+probability is the forecast's, as ``Predictor.predict_distribution`` gives it (the mean over samples of each
+one's probability of having toppled by the end), against each member's topple label. The deterministic
+forecast, one roll-out of the unperturbed push, is scored the same way beside it.
 
-Friction is not varied in the samples (the model predicts at the friction it was trained at), while the
+Friction is not varied in sampled pushes (the model predicts at the friction it was trained at), while the
 members' friction is: that spread is part of the reference the forecast is scored against.
 
 Shapes: P pushes, N samples, K members, T steps of a member (step 0 included).
@@ -27,7 +28,10 @@ from physdyn.config.uncertainty import UncertaintyConfig, resolve_uncertainty
 from physdyn.data.store import StoreData, load_store
 from physdyn.eval.evaluate import EvaluationError, select_sequences, store_rollouts
 from physdyn.eval.scores import COVERAGE_LEVELS, DistributionScores, score_pushes
+from physdyn.geometry.rotations import tilt_angle
 from physdyn.pipeline.distribution import MIN_REGION_SAMPLES, check_samples, sample_requests
+from physdyn.pipeline.spread import SampledPushes
+from physdyn.sim.trajectory import TOPPLE_ANGLE
 
 DEFAULT_SAMPLES = 32  # `physdyn test`'s N on an ensemble store
 ROWS_PER_BATCH = 1024  # roll-outs at a time (P x N rows in all)
@@ -58,31 +62,56 @@ def member_outcomes(store: StoreData, sims: np.ndarray) -> dict[str, np.ndarray]
 def sampled_outcomes(predictor: Any, store: StoreData, sims: np.ndarray, uncertainty: UncertaintyConfig, samples: int,
                      seed: int = 0) -> dict[str, np.ndarray]:
     """N = ``samples`` roll-outs of each push of ``sims`` (P,), for the members' horizon: ``com_position``
-    (P, N, T, 3), ``orientation_xyzw`` (P, N, T, 4), ``toppled`` (P, N) bool by each roll-out's own end, and
-    the sampled step-0 velocities ``lin_vel0``, ``ang_vel0`` (P, N, 3)."""
+    (P, N, T, 3), ``orientation_xyzw`` (P, N, T, 4), ``toppled`` (P, N) bool by each roll-out's own end,
+    ``topple_by_step`` (P, N, T) each roll-out's probability of having toppled by step t (its topple output's
+    running maximum, or the 45 degree rule), and the sampled step-0 velocities ``lin_vel0``, ``ang_vel0`` (P, N, 3)."""
     P, N = len(sims), int(samples)
     steps = store.extra["ensemble/com_position"].shape[2] - 1
     first = store.start[sims]
     lin, ang, _ = sample_requests(store.linear_velocity[first], store.angular_velocity[first], None, uncertainty, N, seed)
     rows = np.repeat(sims, N)  # push-major: the N samples of a push are consecutive rows
-    start = (np.repeat(store.orientation_xyzw[first], N, axis=0), np.repeat(store.com_position[first], N, axis=0),
-             lin.reshape(P * N, 3), ang.reshape(P * N, 3))
+    q0 = np.repeat(store.orientation_xyzw[first], N, axis=0)
+    start = (q0, np.repeat(store.com_position[first], N, axis=0), lin.reshape(P * N, 3), ang.reshape(P * N, 3))
     rolled = store_rollouts(predictor, store, rows, start, steps, batch_size=ROWS_PER_BATCH, seed=seed)
     T = steps + 1
+    if rolled.topple_probability is not None:
+        by_step = np.asarray(rolled.topple_probability, dtype=np.float64)
+    else:
+        by_step = (tilt_angle(q0[:, None], rolled.orientation_xyzw) > TOPPLE_ANGLE).astype(np.float64)
     return {"com_position": rolled.com_position.reshape(P, N, T, 3),
             "orientation_xyzw": rolled.orientation_xyzw.reshape(P, N, T, 4),
-            "toppled": np.asarray(rolled.toppled, dtype=bool).reshape(P, N), "lin_vel0": lin, "ang_vel0": ang}
+            "toppled": np.asarray(rolled.toppled, dtype=bool).reshape(P, N),
+            "topple_by_step": np.maximum.accumulate(by_step, axis=1).reshape(P, N, T), "lin_vel0": lin, "ang_vel0": ang}
+
+
+def forecast_outcomes(predictor: Any, store: StoreData, sims: np.ndarray, uncertainty: UncertaintyConfig, samples: int,
+                      seed: int = 0) -> dict[str, np.ndarray]:
+    """The pipeline's distribution forecast (its distribution stage: ``physdyn.pipeline.spread``) of each push of
+    ``sims``: the keys of ``sampled_outcomes``, and ``topple_probability`` (P,) the forecast's probability of
+    having toppled by the end (as ``Predictor.predict_distribution`` gives it)."""
+    stage = getattr(predictor, "distribution", None) or SampledPushes()
+    if stage.rolls_out_samples or uncertainty.is_zero:
+        out = sampled_outcomes(predictor, store, sims, uncertainty, samples, seed)
+    else:
+        one = sampled_outcomes(predictor, store, sims, resolve_uncertainty("none"), 1, seed)
+        first = store.start[sims]
+        nominal = {key: one[key][:, 0] for key in ("com_position", "orientation_xyzw", "topple_by_step")}
+        out = stage.spread(nominal, store.linear_velocity[first], store.angular_velocity[first], uncertainty, samples,
+                           np.random.default_rng(int(seed)))
+        out["topple_by_step"] = np.repeat(one["topple_by_step"], int(samples), axis=1)
+    out["topple_probability"] = out["topple_by_step"][:, :, -1].mean(axis=1)
+    return out
 
 
 def score_forecast(forecast: dict[str, np.ndarray], members: dict[str, np.ndarray]) -> DistributionScores:
-    """``score_pushes`` of a forecast (``sampled_outcomes``) against the members (``member_outcomes``): the
-    final horizontal displacement, the final orientation, and the fraction of samples toppled. Coverage needs
-    ``MIN_REGION_SAMPLES`` samples a push and is left out below that."""
+    """``score_pushes`` of a forecast (``forecast_outcomes``) against the members (``member_outcomes``): the
+    final horizontal displacement, the final orientation, and the forecast's topple probability. Coverage
+    needs ``MIN_REGION_SAMPLES`` samples a push and is left out below that."""
     position = forecast["com_position"]
     displacement = position[:, :, -1, :2] - position[:, :, 0, :2]
     enough = position.shape[1] >= MIN_REGION_SAMPLES
     return score_pushes(displacement, members["displacement_xy"], forecast["orientation_xyzw"][:, :, -1],
-                        members["orientation_xyzw"], forecast["toppled"].mean(axis=1), members["toppled"],
+                        members["orientation_xyzw"], forecast["topple_probability"], members["toppled"],
                         levels=COVERAGE_LEVELS if enough else ())
 
 
@@ -125,12 +154,12 @@ def evaluate_distribution(predictor: Any, store: StoreData | str, split: str = "
     config = store_uncertainty(store) if uncertainty is None else resolve_uncertainty(uncertainty, "uncertainty")
     sims = select_sequences(store, split, categories)
     members = member_outcomes(store, sims)
-    forecasts = {"forecast": sampled_outcomes(predictor, store, sims, config, count, seed),
-                 "deterministic": sampled_outcomes(predictor, store, sims, resolve_uncertainty("none"), 1, seed)}
+    forecasts = {"forecast": forecast_outcomes(predictor, store, sims, config, count, seed),
+                 "deterministic": forecast_outcomes(predictor, store, sims, resolve_uncertainty("none"), 1, seed)}
     scores = {name: score_forecast(f, members) for name, f in forecasts.items()}
     per_push: dict[str, list] = {"sim": sims.tolist(), "member_topple_fraction": members["toppled"].mean(axis=1).tolist()}
     for name, s in scores.items():
-        per_push[f"{name}.topple_probability"] = forecasts[name]["toppled"].mean(axis=1).tolist()
+        per_push[f"{name}.topple_probability"] = forecasts[name]["topple_probability"].tolist()
         per_push.update({f"{name}.{key}": value.tolist() for key, value in s.per_push.items()})
     out = {"store": store.url, "split": split, "pushes": int(len(sims)), "members": int(K),
            "seconds": (T - 1) / store.rate_hz, "samples": count, "seed": int(seed),

@@ -293,7 +293,7 @@ class Ellipse:
         return self.centre + unit @ self.axes.T
 
 
-def _fit(samples_m) -> tuple[np.ndarray, np.ndarray, int]:
+def fit_positions(samples_m) -> tuple[np.ndarray, np.ndarray, int]:
     """samples_m: (..., N, 2 or 3) -> mean (..., 2), covariance (..., 2, 2) with the floor, N."""
     x = np.asarray(samples_m, dtype=np.float64)
     if x.ndim < 2 or x.shape[-1] not in (2, 3):
@@ -306,18 +306,19 @@ def _fit(samples_m) -> tuple[np.ndarray, np.ndarray, int]:
     return mean, cov, n
 
 
-def position_region(samples_m, level: float) -> Ellipse:
-    """The central ``level`` prediction ellipse of one push's final positions. samples_m: (N, 2 or 3) m."""
+def position_region(samples_m, level: float, fitted: tuple | None = None) -> Ellipse:
+    """The central ``level`` prediction ellipse of one push's final positions. samples_m: (N, 2 or 3) m;
+    fitted: their ``fit_positions``, where already taken (one fit for several levels)."""
     if np.ndim(samples_m) != 2:
         raise ValueError(f"one push's samples (N, 2 or 3) expected, got shape {np.shape(samples_m)}")
-    mean, cov, n = _fit(samples_m)
+    mean, cov, n = fitted if fitted is not None else fit_positions(samples_m)
     return Ellipse(mean, cov, prediction_radius2(n, level), level)
 
 
 def region_coverage(samples_m, members_m, level: float) -> np.ndarray:
     """Fraction of members inside the samples' ``level`` ellipse. samples_m: (..., N, 2 or 3) m; members_m:
     (..., K, 2 or 3) m -> (...,)."""
-    mean, cov, n = _fit(samples_m)
+    mean, cov, n = fit_positions(samples_m)
     y = np.asarray(members_m, dtype=np.float64)
     if y.shape[:-2] != mean.shape[:-1] or y.shape[-1] not in (2, 3):
         raise ValueError(f"members (..., K, 2 or 3) with the samples' leading axes expected, got {y.shape}")

@@ -17,8 +17,8 @@ import numpy as np
 
 from physdyn.config.uncertainty import UncertaintyConfig, resolve_uncertainty
 from physdyn.errors import PredictionError
-from physdyn.eval.scores import COVERAGE_LEVELS, position_region
-from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_rotvec
+from physdyn.eval.scores import COVERAGE_LEVELS, fit_positions, position_region
+from physdyn.geometry.rotations import quat_conjugate, quat_multiply
 from physdyn.sim.perturb import perturb_pushes
 
 QUANTILE_LEVELS = (5, 25, 50, 75, 95)  # per cent
@@ -58,7 +58,8 @@ def turn_deg(orientation_xyzw: np.ndarray) -> np.ndarray:
     """(..., T, 4) -> (...,) the angle (degrees) of the rotation from step 0 to the last step."""
     q = np.asarray(orientation_xyzw, dtype=np.float64)
     relative = quat_multiply(q[..., -1, :], quat_conjugate(q[..., 0, :]))
-    return np.degrees(np.linalg.norm(quat_to_rotvec(relative), axis=-1))
+    # the angle of a unit quaternion, 2 atan2(|xyz|, |w|): in [0, 180] degrees, the sign of q either way
+    return np.degrees(2.0 * np.arctan2(np.linalg.norm(relative[..., :3], axis=-1), np.abs(relative[..., 3])))
 
 
 def _quantiles(values: np.ndarray) -> dict[int, Any]:
@@ -67,13 +68,14 @@ def _quantiles(values: np.ndarray) -> dict[int, Any]:
     return {level: (float(v) if np.ndim(v) == 0 else np.asarray(v)) for level, v in zip(QUANTILE_LEVELS, q)}
 
 
-def region(displacement_xy: np.ndarray, level: float) -> dict[str, Any] | None:
+def region(displacement_xy: np.ndarray, level: float, fitted: tuple | None = None) -> dict[str, Any] | None:
     """The central ``level`` region of N final displacements (N, 2) m as ``centre`` (2,) m, ``semi_axes``
     (2,) m (major first), ``angle_deg`` (the major axis from +x, counter-clockwise) and ``covariance`` (2, 2)
-    m^2; None for fewer than ``MIN_REGION_SAMPLES`` samples."""
+    m^2; None for fewer than ``MIN_REGION_SAMPLES`` samples. ``fitted``: the samples' (mean, covariance, N)
+    where already taken (``physdyn.eval.scores.fit_positions``)."""
     if len(displacement_xy) < MIN_REGION_SAMPLES:
         return None
-    ellipse = position_region(displacement_xy, level)
+    ellipse = position_region(displacement_xy, level, fitted)
     return {"centre": np.asarray(ellipse.centre), "semi_axes": ellipse.semi_axes, "angle_deg": ellipse.angle_deg,
             "covariance": np.asarray(ellipse.covariance), "level": float(level)}
 
@@ -100,15 +102,17 @@ def summarise(com_position: Any, orientation_xyzw: Any, toppled_by_step: Any) ->
     final = p[:, -1]
     turn = turn_deg(q)
     displacement = final[:, :2] - p[:, 0, :2]
+    quantiles = _quantiles(np.concatenate([final, turn[:, None]], axis=1))  # one sort for all four
     out: dict[str, Any] = {
         "topple_probability": np.maximum.accumulate(np.clip(toppled, 0.0, 1.0), axis=1).mean(axis=0),
         "final_position_mean": final.mean(axis=0),
-        "final_position_quantiles": _quantiles(final),
+        "final_position_quantiles": {level: value[:3] for level, value in quantiles.items()},
         "turn_deg_mean": float(turn.mean()),
-        "turn_deg_quantiles": _quantiles(turn),
+        "turn_deg_quantiles": {level: float(value[3]) for level, value in quantiles.items()},
     }
+    fitted = fit_positions(displacement) if len(displacement) >= MIN_REGION_SAMPLES else None
     for level in COVERAGE_LEVELS:
-        out[f"region_{round(100 * level)}"] = region(displacement, level)
+        out[f"region_{round(100 * level)}"] = region(displacement, level, fitted)
     return out
 
 
@@ -121,7 +125,7 @@ def describe(result: dict[str, Any]) -> str:
     region = result.get("region_90")
     spread = "" if region is None else (f"; 90 % of final positions within an ellipse of semi-axes "
                                         f"{100 * region['semi_axes'][0]:.1f} x {100 * region['semi_axes'][1]:.1f} cm")
-    return (f"distribution ({result['checkpoint']}), {result['samples']} sampled pushes, t = {result['time'][-1]:.2f} s: "
+    return (f"distribution ({result['checkpoint']}), {result['samples']} samples, t = {result['time'][-1]:.2f} s: "
             f"topple probability {result['topple_probability'][-1]:.2f}; centre of mass ends at ({mean[0]:.3f}, "
             f"{mean[1]:.3f}, {mean[2]:.3f}) m on average, x {lo[0]:.3f} to {hi[0]:.3f} m and y {lo[1]:.3f} to "
             f"{hi[1]:.3f} m (5-95 %){spread}; turned {result['turn_deg_mean']:.1f} deg on average "

@@ -7,24 +7,27 @@ interfaces (``physdyn.pipeline.stages``), not which ones exist.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from physdyn.data.windows import DELTA_KEYS
+from physdyn.pipeline.spread import DistributionStage, SampledPushes
 from physdyn.pipeline.stages import DEFAULT_NUM_POINTS, CloudSpec, CorrectionStage, MotionStage, PreparedBatch, ToppleStage
 from physdyn.pipeline.trajectory import RolloutResult, integrate, toppled_by_own_end
 
 
 @dataclass
 class Pipeline:
-    """One stage of each kind; ``name`` says what a prediction's ``checkpoint`` key says (a preset or a path)."""
+    """One stage of each kind; ``name`` says what a prediction's ``checkpoint`` key says (a preset or a path).
+    ``distribution``: how a distribution forecast makes its samples (``physdyn.pipeline.spread``)."""
 
     motion: MotionStage
     topple: ToppleStage
     correction: CorrectionStage
     name: str = "model"
+    distribution: DistributionStage = field(default_factory=SampledPushes)
 
     @property
     def network(self) -> Any:

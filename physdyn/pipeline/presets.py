@@ -23,9 +23,10 @@ from physdyn.errors import CheckpointError, ConfigError, PhysdynError
 from physdyn.pipeline import correction as _corrections
 from physdyn.pipeline import topple as _topples
 from physdyn.pipeline.engine import Pipeline
-from physdyn.registry import CORRECTION_STAGES, MOTION_STAGES, TOPPLE_STAGES
+from physdyn.registry import CORRECTION_STAGES, DISTRIBUTION_STAGES, MOTION_STAGES, TOPPLE_STAGES
 
-KINDS = {"motion": MOTION_STAGES, "topple": TOPPLE_STAGES, "correction": CORRECTION_STAGES}
+KINDS = {"motion": MOTION_STAGES, "topple": TOPPLE_STAGES, "correction": CORRECTION_STAGES,
+         "distribution": DISTRIBUTION_STAGES}
 
 
 @dataclass
@@ -45,6 +46,7 @@ class PredictorPreset:
     topple: StageConfig = field(default_factory=lambda: StageConfig("head"))
     correction: StageConfig = field(default_factory=lambda: StageConfig("none"))
     weights: str | None = None
+    distribution: StageConfig = field(default_factory=lambda: StageConfig("sampled_pushes"))
 
 
 def preset_file(name: str) -> Path:

@@ -214,7 +214,7 @@ def _dotted(result: dict[str, Any], prefix: str = "") -> dict[str, np.ndarray]:
     return out
 
 
-_DISTRIBUTION_SCALARS = {"kind": str, "mesh": str, "checkpoint": str, "rate_hz": float, "mesh_scale": float,
+_DISTRIBUTION_SCALARS = {"kind": str, "mesh": str, "checkpoint": str, "distribution": str, "rate_hz": float, "mesh_scale": float,
                          "samples": int, "seed": int, "turn_deg_mean": float}
 
 

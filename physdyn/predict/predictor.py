@@ -30,6 +30,7 @@ from physdyn.models.checkpoint_file import SHIPPED
 from physdyn.pipeline.distribution import check_samples, sample_requests, summarise
 from physdyn.pipeline.engine import Pipeline, run_stages
 from physdyn.pipeline.presets import build_pipeline, load_pipeline, preset_file, read_preset
+from physdyn.pipeline.spread import SampledPushes
 from physdyn.pipeline.stages import BodyCache
 from physdyn.predict.body import PreparedBody, preparation_key, prepare_body
 from physdyn.predict.request_checks import (MAX_ANGULAR_SPEED, MAX_LINEAR_SPEED, MAX_SECONDS, _boolean, _orientations,  # noqa: F401
@@ -172,19 +173,21 @@ class Predictor:
 
     def predict_distribution(self, mesh: Any, lin_vel: Any, ang_vel: Any, seconds: float = 3.0, uncertainty: Any = "default",
                              samples: int = 32, seed: int = 0, orientation_xyzw: Any = None) -> dict[str, Any]:
-        """The outcomes of a push known only roughly: ``samples`` pushes drawn around (``lin_vel``, ``ang_vel``)
-        from ``uncertainty`` (a preset name: none, low, default; a mapping of ``UncertaintyConfig``'s keys; or
-        an ``UncertaintyConfig``) with seed ``seed``, rolled out as one batch of ``mesh`` (prepared once; pass a
-        ``PreparedBody`` for a scale other than 1) resting in ``orientation_xyzw``. Friction is not varied:
-        the model's friction is the one it was trained at (docs/distributions.md).
+        """The outcomes of a push known only roughly: ``samples`` outcomes of the push (``lin_vel``, ``ang_vel``)
+        under ``uncertainty`` (a preset name: none, low, default; a mapping of ``UncertaintyConfig``'s keys; or
+        an ``UncertaintyConfig``) with seed ``seed``, of ``mesh`` (prepared once; pass a ``PreparedBody`` for a
+        scale other than 1) resting in ``orientation_xyzw``. The pipeline's distribution stage makes them
+        (``physdyn.pipeline.spread``): ``calibrated`` (``fast``) draws them around one roll-out with a fitted
+        spread that covers the push's uncertainty and the model's own error; ``sampled_pushes`` rolls out that
+        many pushes drawn from the uncertainty as one batch.
 
-        Returns ``com_position`` (N, T, 3), ``orientation_xyzw`` (N, T, 4), ``sample_lin_vel`` and
-        ``sample_ang_vel`` (N, 3), ``toppled`` (N,) each sample's verdict, ``topple_probability`` (T,) the
-        probability of having toppled by each step, the summary figures of
-        ``physdyn.pipeline.distribution.summarise``, and ``samples``, ``seed``, ``uncertainty`` (the resolved
-        values), ``lin_vel``, ``ang_vel``, ``rate_hz``, ``time`` (T,), ``com_mesh``, ``mesh``,
-        ``mesh_scale``, ``checkpoint``, ``kind`` ("distribution"). Each sample's trajectory is the one
-        ``predict_many`` gives for its push, to the bit; with zero uncertainty each equals ``predict``'s.
+        Returns ``com_position`` (N, T, 3), ``orientation_xyzw`` (N, T, 4), ``toppled`` (N,) each sample's
+        verdict, ``topple_probability`` (T,) the probability of having toppled by each step, the summary
+        figures of ``physdyn.pipeline.distribution.summarise``, ``distribution`` (the stage's name), and
+        ``samples``, ``seed``, ``uncertainty`` (the resolved values), ``lin_vel``, ``ang_vel``, ``rate_hz``,
+        ``time`` (T,), ``com_mesh``, ``mesh``, ``mesh_scale``, ``checkpoint``, ``kind`` ("distribution");
+        with ``sampled_pushes`` also ``sample_lin_vel`` and ``sample_ang_vel`` (N, 3), the pushes rolled out.
+        With zero uncertainty every sample is ``predict``'s trajectory.
         """
         config = resolve_uncertainty(uncertainty)
         count = check_samples(samples)
@@ -192,24 +195,41 @@ class Predictor:
         w0 = as_vector(ang_vel, "angular velocity (ang_vel)")
         T = self.num_steps(seconds)
         q0 = np.tile(check_orientation(orientation_xyzw), (count, 1))
-        lin, ang, _ = sample_requests(v0, w0, None, config, count, seed)
-        v, w = _velocities(lin[0], ang[0], count)
         body = self._bodies([mesh], [1.0])[0]
-        p, q = np.empty((count, T, 3)), np.empty((count, T, 4))
-        toppled, by_step = np.zeros(count, dtype=bool), np.zeros((count, T))
-        # one body, one length: the batches are the samples themselves, in order
-        for idx, rolled in self._rollouts([body] * count, (q0, v, w), [T] * count, 1024):
-            p[idx], q[idx], toppled[idx] = rolled.com_position, rolled.orientation_xyzw, rolled.toppled
-            # each sample's own probabilities where the model has a topple output, else the 45 degree rule
-            by_step[idx] = (rolled.topple_probability if rolled.topple_probability is not None
-                            else tilt_angle(q0[idx, None], rolled.orientation_xyzw) > TOPPLE_ANGLE)
-        out = {"kind": "distribution", "rate_hz": self.rate_hz, "time": np.arange(T, dtype=np.float64) / self.rate_hz,
-               "com_position": p, "orientation_xyzw": q, "sample_lin_vel": v, "sample_ang_vel": w, "toppled": toppled}
+        stage = getattr(self.model, "distribution", None) or SampledPushes()
+        out: dict[str, Any] = {"kind": "distribution", "rate_hz": self.rate_hz,
+                               "time": np.arange(T, dtype=np.float64) / self.rate_hz}
+        if stage.rolls_out_samples:
+            lin, ang, _ = sample_requests(v0, w0, None, config, count, seed)
+            v, w = _velocities(lin[0], ang[0], count)
+            p, q = np.empty((count, T, 3)), np.empty((count, T, 4))
+            toppled, by_step = np.zeros(count, dtype=bool), np.zeros((count, T))
+            # one body, one length: the batches are the samples themselves, in order
+            for idx, rolled in self._rollouts([body] * count, (q0, v, w), [T] * count, 1024):
+                p[idx], q[idx], toppled[idx] = rolled.com_position, rolled.orientation_xyzw, rolled.toppled
+                by_step[idx] = self._topple_by_step(rolled, q0[idx])
+            out.update(sample_lin_vel=v, sample_ang_vel=w)
+        else:
+            # the push as given, rolled out alone (``predict``'s roll-out), and the samples drawn around it
+            _, rolled = next(self._rollouts([body], (q0[:1], v0[None], w0[None]), [T], 1))
+            nominal = {"com_position": rolled.com_position, "orientation_xyzw": rolled.orientation_xyzw,
+                       "topple_by_step": np.maximum.accumulate(self._topple_by_step(rolled, q0[:1]), axis=1)}
+            drawn = stage.spread(nominal, v0[None], w0[None], config, count, np.random.default_rng(int(seed)))
+            p, q, toppled = drawn["com_position"][0], drawn["orientation_xyzw"][0], drawn["toppled"][0]
+            by_step = np.repeat(nominal["topple_by_step"], count, axis=0)
+        out.update(com_position=p, orientation_xyzw=q, toppled=toppled)
         out.update(summarise(p, q, by_step))
         out.update(samples=count, seed=int(seed), uncertainty=dataclasses.asdict(config), lin_vel=v0, ang_vel=w0,
                    com_mesh=np.array(body.spec.com_mesh, dtype=np.float64), mesh=body.name, mesh_scale=body.scale,
-                   checkpoint=self.name)
+                   checkpoint=self.name, distribution=stage.registered_name)
         return out
+
+    @staticmethod
+    def _topple_by_step(rolled: Any, q0: np.ndarray) -> np.ndarray:
+        """(B, T) each roll-out's own probabilities where the model has a topple output, else the 45 degree rule."""
+        if rolled.topple_probability is not None:
+            return np.asarray(rolled.topple_probability, dtype=np.float64)
+        return (tilt_angle(q0[:, None], rolled.orientation_xyzw) > TOPPLE_ANGLE).astype(np.float64)
 
     def _rollouts(self, bodies: list[PreparedBody], start: tuple, steps: list[int], chunk_size: int):
         """The roll-outs of R requests as batches: yields (idx, ``RolloutResult``) per chunk of at most

@@ -63,7 +63,7 @@ def test_physdyn_test_scores_the_samples_against_the_members(ensemble_store, tmp
     assert samples["com_position"].shape[2] == members_p.shape[2]
     p = samples["com_position"]
     direct = score_pushes(p[:, :, -1, :2] - p[:, :, 0, :2], members_p[:, :, -1, :2] - members_p[:, :, 0, :2],
-                          samples["orientation_xyzw"][:, :, -1], members_q[:, :, -1], samples["toppled"].mean(axis=1),
+                          samples["orientation_xyzw"][:, :, -1], members_q[:, :, -1], samples["topple_probability"],
                           store.extra["ensemble/topple_label"][sims].any(axis=-1))
     for key, value in direct.mean.items():
         assert block["forecast"][key] == pytest.approx(value, rel=1e-12, abs=1e-12), key

@@ -1,10 +1,12 @@
 """A distribution from a prediction: ``Predictor.predict_distribution`` and `physdyn predict --samples`.
 
-The shipped default (``fast``) on a small box mesh: zero uncertainty gives ``predict``'s trajectory for every
-sample, the samples are ``predict_many``'s for the same pushes to the bit, the spread grows with the
-uncertainty, and the files (.npz, .json) round-trip through the viewer."""
+The shipped default (``fast``, its ``calibrated`` distribution stage) and ``fast`` with the ``sampled_pushes``
+stage on a small box mesh: zero uncertainty gives ``predict``'s trajectory for every sample, sampled pushes are
+``predict_many``'s for the same pushes to the bit, the spread grows with the uncertainty, and the files (.npz,
+.json) round-trip through the viewer."""
 
 import contextlib
+import dataclasses
 import io
 import json
 
@@ -15,7 +17,8 @@ import trimesh
 from physdyn.cli import main as cli_main
 from physdyn.pipeline.distribution import QUANTILE_LEVELS, sample_requests, summarise
 from physdyn.predict.prediction_files import read_prediction
-from physdyn.predict.predictor import load_predictor
+from physdyn.pipeline.spread import SampledPushes
+from physdyn.predict.predictor import Predictor, load_predictor
 from physdyn.viz.viewer import read_viewer_data
 
 LIN, ANG, SECONDS = [1.0, 0.2, 0.0], [0.0, 0.0, 3.0], 1.5
@@ -24,6 +27,12 @@ LIN, ANG, SECONDS = [1.0, 0.2, 0.0], [0.0, 0.0, 3.0], 1.5
 @pytest.fixture(scope="module")
 def predictor():
     return load_predictor()
+
+
+@pytest.fixture(scope="module")
+def sampled(predictor):
+    """``fast`` whose distribution rolls out sampled pushes."""
+    return Predictor(dataclasses.replace(predictor.model, distribution=SampledPushes()), name="fast")
 
 
 @pytest.fixture(scope="module")
@@ -40,17 +49,24 @@ def cli(*argv):
     return code, out.getvalue(), err.getvalue()
 
 
-def test_zero_uncertainty_gives_predicts_trajectory_for_every_sample(predictor, mesh_file):
-    dist = predictor.predict_distribution(mesh_file, LIN, ANG, SECONDS, uncertainty="none", samples=4)
+@pytest.mark.parametrize("stage", ["calibrated", "sampled_pushes"])
+def test_zero_uncertainty_gives_predicts_trajectory_for_every_sample(predictor, sampled, mesh_file, stage):
+    model = predictor if stage == "calibrated" else sampled
+    dist = model.predict_distribution(mesh_file, LIN, ANG, SECONDS, uncertainty="none", samples=4)
     one = predictor.predict(mesh_file, LIN, ANG, SECONDS)
+    assert dist["distribution"] == stage
     for s in range(4):
         np.testing.assert_allclose(dist["com_position"][s], one["com_position"], atol=1e-6)
         np.testing.assert_allclose(dist["orientation_xyzw"][s], one["orientation_xyzw"], atol=1e-6)
-    np.testing.assert_array_equal(dist["sample_lin_vel"], np.tile(LIN, (4, 1)))
+    np.testing.assert_allclose(dist["topple_probability"], np.maximum.accumulate(one["topple_probability"]), atol=1e-6)
+    assert (dist["toppled"] == one["toppled"]).all()
+    if stage == "sampled_pushes":
+        np.testing.assert_array_equal(dist["sample_lin_vel"], np.tile(LIN, (4, 1)))
 
 
-def test_samples_are_predict_manys_trajectories_to_the_bit(predictor, mesh_file):
-    dist = predictor.predict_distribution(mesh_file, LIN, ANG, SECONDS, samples=8, seed=3)
+def test_sampled_pushes_are_predict_manys_trajectories_to_the_bit(sampled, mesh_file):
+    dist = sampled.predict_distribution(mesh_file, LIN, ANG, SECONDS, samples=8, seed=3)
+    predictor = sampled
     many = predictor.predict_many([mesh_file] * 8, dist["sample_lin_vel"], dist["sample_ang_vel"], SECONDS)
     for s, result in enumerate(many):
         np.testing.assert_array_equal(dist["com_position"][s], result["com_position"])
@@ -58,7 +74,9 @@ def test_samples_are_predict_manys_trajectories_to_the_bit(predictor, mesh_file)
         assert dist["toppled"][s] == result["toppled"]
 
 
-def test_keys_shapes_and_a_spread_that_grows_with_the_uncertainty(predictor, mesh_file):
+@pytest.mark.parametrize("stage", ["calibrated", "sampled_pushes"])
+def test_keys_shapes_and_a_spread_that_grows_with_the_uncertainty(predictor, sampled, mesh_file, stage):
+    predictor = predictor if stage == "calibrated" else sampled
     N, T = 16, predictor.num_steps(SECONDS)
     spread = {}
     for level in ("low", "default", {"speed_rel": 0.2, "direction_deg": 20.0}):

@@ -147,9 +147,11 @@ def test_data_info_shows_the_ensemble(store, capsys):
 
 
 def test_ensemble_presets_load():
-    for name, members in (("ensemble_eval", 32), ("ensemble_train", 8)):
+    for name, members in (("ensemble_eval", 32), ("ensemble_train", 8), ("ensemble_calibrate", 16)):
         cfg = load_config(DataConfig, Path(REPO / "configs" / "data" / f"{name}.yaml"))
         assert cfg.ensemble.members == members and cfg.ensemble.uncertainty_config() == resolve_uncertainty("default")
+        # the clouds the default model (`fast`) reads, so `physdyn test` and `fit-spread` take the store as it is
+        assert (cfg.points_method, cfg.num_points) == ("hull_surface", 256), name
 
 
 @pytest.mark.ray
