@@ -1,6 +1,6 @@
 """physdyn: learn to predict the physical dynamics of unseen 3D objects (Rempe et al., WACV 2020)."""
 
-__version__ = "0.2.0"
+__version__ = "0.3.0"
 
 
 def __getattr__(name: str):

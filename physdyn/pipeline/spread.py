@@ -95,8 +95,10 @@ class CalibratedSpread(DistributionStage):
         q = np.asarray(nominal["orientation_xyzw"], dtype=np.float64)
         P, T = p.shape[:2]
         N = int(samples)
+        # the verdicts from a stream of their own, so the first N samples of a larger forecast are the same
+        verdicts = np.random.default_rng(rng.integers(2 ** 63))
         draws = rng.standard_normal((P, N, 3))
-        verdict = rng.random((P, N)) < np.asarray(nominal["topple_by_step"])[:, -1:]
+        verdict = verdicts.random((P, N)) < np.asarray(nominal["topple_by_step"])[:, -1:]
         if uncertainty.is_zero:
             draws[:] = 0.0
             verdict = np.repeat(np.asarray(nominal["topple_by_step"])[:, -1:] >= 0.5, N, axis=1)
