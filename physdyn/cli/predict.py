@@ -25,13 +25,13 @@ examples:
 
 --batch reads one JSON object per line, e.g.
   {"mesh": "mug.obj", "lin_vel": [1.2, 0, 0], "ang_vel": [0, 0, 3], "seconds": 4, "out": "mug.json"}
-(optional keys: orientation_xyzw, scale, compare_sim, render; for a distribution samples, uncertainty (a
+(optional keys: orientation_xyzw, scale, friction, compare_sim, render; for a distribution samples, uncertainty (a
 preset name or a mapping such as {"speed_rel": 0.05}), seed, plot). Paths in a line are relative to the
 requests file's folder (mesh) and to --out-dir (out, render). A bad line is reported with its number and
 the others still run; the exit status is 2 if any line failed. Output format: docs/predict.md."""
 
-BATCH_KEYS = {"mesh", "lin_vel", "ang_vel", "seconds", "out", "orientation_xyzw", "scale", "compare_sim", "render",
-              "samples", "uncertainty", "seed", "plot"}
+BATCH_KEYS = {"mesh", "lin_vel", "ang_vel", "seconds", "out", "orientation_xyzw", "scale", "friction", "compare_sim",
+              "render", "samples", "uncertainty", "seed", "plot"}
 # --*-sd flag -> UncertaintyConfig key (docs/conventions.md, "Uncertainty of a push")
 SPREAD_FLAGS = (("speed_sd", "speed_rel"), ("direction_sd_deg", "direction_deg"), ("spin_sd", "spin_rel"),
                 ("spin_sd_abs", "spin_abs"), ("friction_sd", "friction_rel"))
@@ -58,6 +58,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seconds", type=float, default=3.0, help="how long to predict (default: %(default)s)")
     p.add_argument("--orientation", nargs=4, type=float, metavar=("QX", "QY", "QZ", "QW"),
                    help="resting orientation of the mesh frame, a quaternion (default: the mesh as it is)")
+    p.add_argument("--friction", type=float, metavar="MU", help="the effective Coulomb coefficient of the object on "
+                   "the ground (default: the model's own, 0.25 for the shipped ones; the product of the two lateral "
+                   "frictions in PyBullet); fast and contact_prior slide at it, other models refuse it")
     p.add_argument("--scale", type=float, default=1.0, help="multiply the mesh's coordinates by this to get metres "
                    "(0.001 for millimetres; default: %(default)s)")
     p.add_argument("--checkpoint", metavar="CKPT", help="a .ckpt written by `physdyn fit`, or a shipped model: 'fast' "
@@ -157,7 +160,7 @@ def run_one(args: argparse.Namespace) -> int:
         check_animation_path(args.render, args.overwrite)
     with warnings.catch_warnings(record=True) as notes:
         warnings.simplefilter("always")
-        body = prepare_body(args.mesh, args.scale)
+        body = prepare_body(args.mesh, args.scale).with_friction(args.friction)
         predictor = load_predictor(args.checkpoint, device=args.device)
         result = predictor.predict(body, lin, ang, seconds=args.seconds, orientation_xyzw=orientation,
                                    compare_sim=args.compare_sim)
@@ -192,7 +195,7 @@ def run_distribution(args: argparse.Namespace, uncertainty: Any) -> int:
     check_outputs(args.out, args.render, args.plot, args.overwrite)
     with warnings.catch_warnings(record=True) as notes:
         warnings.simplefilter("always")
-        body = prepare_body(args.mesh, args.scale)
+        body = prepare_body(args.mesh, args.scale).with_friction(args.friction)
         predictor = load_predictor(args.checkpoint, device=args.device)
         result = predictor.predict_distribution(body, lin, ang, args.seconds, uncertainty, samples, args.seed, orientation)
     print_mesh_notes(notes)
@@ -349,5 +352,5 @@ def _read_request(line: str, number: int, base, out_dir, args, bodies: dict) -> 
             warnings.simplefilter("always")
             bodies[key] = prepare_body(mesh, float(scale))
         print_mesh_notes(notes, f"line {number}: ")
-    request["body"] = bodies[key]
+    request["body"] = bodies[key].with_friction(req.get("friction"))
     return request

@@ -19,7 +19,8 @@ from physdyn.data.windows import frame_targets, store_spin_inertia, store_world_
 from physdyn.errors import PhysdynError
 from physdyn.eval import metrics as M
 from physdyn.eval.baselines import Baseline, predictor_name, resolve_predictor
-from physdyn.eval.rollout import DELTA_KEYS, STATE_KEYS, RolloutOptions, RolloutResult, as_pipeline, rollout, teacher_forced
+from physdyn.eval.rollout import (DELTA_KEYS, STATE_KEYS, RolloutOptions, RolloutResult, as_pipeline, check_store_clouds,
+                                  rollout, store_friction, teacher_forced)
 
 GROUPS = ("non_toppling", "toppling", "all")
 
@@ -110,15 +111,6 @@ def _shapes(baseline: Baseline, store: StoreData, sims: np.ndarray) -> dict[str,
             "inertia_per_mass": store_world_inertia(store, sims, np.tile([0.0, 0.0, 0.0, 1.0], (len(shapes), 1)))}
 
 
-def _check_store_clouds(store: StoreData, reader: str, method: str, size: int) -> None:
-    """One line and no roll-out where the checkpoint's ``reader`` reads ``method`` clouds of ``size`` points and
-    ``store`` holds others."""
-    if store.points_method != method or store.points.shape[1] != size:
-        raise PhysdynError(f"the checkpoint's {reader} reads {method} clouds of {size} points and {store.url} holds "
-                           f"{store.points_method} ones of {store.points.shape[1]}; test it on a store made with "
-                           f"points_method: {method}, num_points: {size}")
-
-
 def predict_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, truth: dict[str, np.ndarray], warm_start: int = 0,
                      batch_size: int = 256, seed: int = 0) -> RolloutResult:
     """Roll ``predictor`` out over ``sims`` for the horizon of ``truth`` (from ``gather_truth``)."""
@@ -138,17 +130,9 @@ def store_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, start: tu
     row b on the body and cloud of ``sims[b]`` (repeats allowed); warm: true velocities of steps 1..K, (B, K, 3) each."""
     rng = np.random.default_rng(seed)
     pipeline = as_pipeline(predictor)
-    topple, correction, parts = pipeline.topple, pipeline.correction, []
-    # a PointNet classifier reads its kind of cloud, given whole (thinned by it), and so does a PointNet correction
-    wants = topple.cloud.method if topple.strict_cloud else None
-    if wants is not None:
-        _check_store_clouds(store, "topple classifier", wants, topple.cloud.count)
-    if correction.strict_cloud:
-        _check_store_clouds(store, "outcome correction", correction.cloud.method or store.points_method, correction.cloud.count)
-    if wants is not None and pipeline.points_method != wants:  # one store cannot feed both: the model would get the wrong kind
-        raise PhysdynError(f"the model reads {pipeline.points_method} clouds and its topple classifier {wants} ones; a "
-                           "store holds one kind, so `physdyn test` cannot feed both: measure it through `predict` "
-                           f"(benchmarks/frontier.py), or give the classifier a model trained on {wants} clouds")
+    topple, parts = pipeline.topple, []
+    check_store_clouds(pipeline, store)
+    friction = None if warm else store_friction(pipeline, store.friction, sims)  # a warm start is at the model's own
     for sl in _chunks(len(sims), batch_size):
         q0, p0, v0, w0 = (x[sl] for x in start)
         points = _model_points(store, sims[sl], pipeline.network.num_points, rng)
@@ -158,8 +142,10 @@ def store_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, start: tu
                                       np.random.default_rng([seed, sl.start])) if simulates else None
         parts.append(rollout(pipeline, points, q0, p0, v0, w0, steps, RolloutOptions(
             warm and (warm[0][sl], warm[1][sl]), topple_points_body=topple_points, spin_inertia=store_spin_inertia(store, sims[sl], q0),
-            body_inertia=store_world_inertia(store, sims[sl], q0) if simulates else None)))
+            body_inertia=store_world_inertia(store, sims[sl], q0) if simulates else None,
+            friction=None if friction is None else friction[sl])))
     return _concat(parts)
+
 
 
 def _shape_single_steps(baseline: Baseline, store: StoreData, sims: np.ndarray, truth: dict[str, np.ndarray],

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from physdyn.data.windows import DELTA_KEYS, relative_rotation, world_oriented_points
+from physdyn.errors import PhysdynError
 from physdyn.models.dynamics_network import DynamicsNetwork
 from physdyn.pipeline.correction import NoCorrection
 from physdyn.pipeline.engine import Pipeline, run_stages
@@ -50,6 +51,8 @@ class RolloutOptions:
     hull_counts: (B,) how many of each ``points_body`` cloud's first points are its mesh's hull vertices
     (``PreparedBody.hull_count``), so a PointNet that thins them needs no qhull.
     with_changes: False: the result's ``delta_*`` are None, for a caller that reads the states only.
+    friction: (B,) each push's effective Coulomb coefficient with the ground, for a motion that takes friction
+    (``MotionStage.takes_friction``: the contact prior); None: the model's own.
     reference_loop: a bare network rolled out through its ``step`` one step at a time, numpy between steps
     (the same numbers to float32 precision; the check on the torch loop).
     """
@@ -62,6 +65,7 @@ class RolloutOptions:
     hull_counts: np.ndarray | None = None
     with_changes: bool = True
     reference_loop: bool = False
+    friction: np.ndarray | None = None
 
 
 def rollout(model: Any, points_body: np.ndarray, orientation0_xyzw: np.ndarray, com_position0: np.ndarray,
@@ -89,7 +93,8 @@ def prepared_batch(points_body: np.ndarray, start: tuple, steps: int, options: R
     return PreparedBatch(as_float64(points_body), q0, p0.reshape(B, 3), v0.reshape(B, 3), w0.reshape(B, 3), int(steps),
                          warm_v, warm_w, stage_points_body=options.topple_points_body, spin_inertia=options.spin_inertia,
                          body_inertia=options.body_inertia, lengths=options.lengths, hull_counts=options.hull_counts,
-                         with_changes=options.with_changes, cache=cache or BodyCache())
+                         with_changes=options.with_changes, cache=cache or BodyCache(),
+                         friction=None if options.friction is None else as_float64(options.friction).reshape(B))
 
 
 def as_pipeline(model: Any, reference_loop: bool = False) -> Pipeline:
@@ -151,3 +156,37 @@ def teacher_forced(
     out: dict[str, np.ndarray | None] = {k: as_float64(getattr(pred, k)) for k in DELTA_KEYS}
     out["topple_probability"] = None if pred.topple_probability is None else as_float64(pred.topple_probability)
     return out
+
+
+def store_friction(pipeline: Pipeline, friction: np.ndarray, sims: np.ndarray) -> np.ndarray | None:
+    """(B,) the friction of each simulation of ``sims`` (``friction``: a store's, (M,)), for a motion that takes
+    friction on a store simulated at other frictions than the model's own; None otherwise (the model's own
+    throughout: the roll-out as it was)."""
+    own = getattr(pipeline.network, "prior_friction", None)
+    mu = np.asarray(friction, dtype=np.float64)[sims]
+    # a store that does not know its friction (imported trials: NaN) is rolled out at the model's own
+    if not pipeline.motion.takes_friction or own is None or np.isnan(mu).any() or np.allclose(mu, own, rtol=0, atol=1e-9):
+        return None
+    return mu
+
+
+def check_store_clouds(pipeline: Pipeline, store: Any) -> None:
+    """One line and no roll-out where a stage of ``pipeline`` reads clouds ``store`` does not hold: a PointNet
+    topple classifier reads its kind of cloud, given whole (thinned by it), and so does a PointNet correction."""
+    topple, correction = pipeline.topple, pipeline.correction
+    wants = topple.cloud.method if topple.strict_cloud else None
+    if wants is not None:
+        _check_clouds(store, "topple classifier", wants, topple.cloud.count)
+    if correction.strict_cloud:
+        _check_clouds(store, "outcome correction", correction.cloud.method or store.points_method, correction.cloud.count)
+    if wants is not None and pipeline.points_method != wants:  # one store cannot feed both: the model would get the wrong kind
+        raise PhysdynError(f"the model reads {pipeline.points_method} clouds and its topple classifier {wants} ones; a "
+                           "store holds one kind, so `physdyn test` cannot feed both: measure it through `predict` "
+                           f"(benchmarks/frontier.py), or give the classifier a model trained on {wants} clouds")
+
+
+def _check_clouds(store: Any, reader: str, method: str, size: int) -> None:
+    if store.points_method != method or store.points.shape[1] != size:
+        raise PhysdynError(f"the checkpoint's {reader} reads {method} clouds of {size} points and {store.url} holds "
+                           f"{store.points_method} ones of {store.points.shape[1]}; test it on a store made with "
+                           f"points_method: {method}, num_points: {size}")

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from physdyn.data.windows import DELTA_KEYS
+from physdyn.errors import PredictionError
 from physdyn.pipeline.spread import DistributionStage, SampledPushes
 from physdyn.pipeline.stages import DEFAULT_NUM_POINTS, CloudSpec, CorrectionStage, MotionStage, PreparedBatch, ToppleStage
 from physdyn.pipeline.trajectory import RolloutResult, integrate, toppled_by_own_end
@@ -79,6 +80,10 @@ class Pipeline:
 def run_stages(pipeline: Pipeline, batch: PreparedBatch) -> RolloutResult:
     """Roll ``batch`` out through ``pipeline``'s stages: the states of steps 0..S, per-step topple
     probabilities, each push's verdict at its own end, the corrected resting poses."""
+    if batch.friction is not None and not pipeline.motion.takes_friction:
+        raise PredictionError(f"the model '{pipeline.name}' predicts at the friction it was trained at (its motion "
+                              f"'{pipeline.motion.registered_name}' takes none); drop the friction, or predict with "
+                              "fast or contact_prior, whose contact prior takes it")
     motion = pipeline.motion.run(batch, with_topple=pipeline.topple.reads_head)
     states = integrate(batch.p0, batch.q0, batch.v0, batch.w0, motion.deltas)
     if motion.warm_steps and batch.steps:

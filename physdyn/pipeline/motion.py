@@ -16,11 +16,14 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
+import torch
 
 from physdyn.data.windows import DELTA_KEYS, relative_rotation
-from physdyn.errors import ConfigError
+from physdyn.errors import ConfigError, PredictionError
 from physdyn.geometry.rotations import quat_multiply, quat_to_matrix, rotvec_to_quat, tilt_angle
 from physdyn.models.dynamics_network import DynamicsNetwork
+from physdyn.models.heads.base import NUM_CHANGES
+from physdyn.models.prior_rollout import prior_rollout
 from physdyn.pipeline.stages import CloudSpec, Motion, MotionStage, PreparedBatch
 from physdyn.pipeline.trajectory import as_float64, state_changes
 from physdyn.registry import MOTION_STAGES
@@ -67,15 +70,21 @@ class NetworkMotion(MotionStage):
             if warm_turn is not None:
                 kwargs["warm_turn"] = warm_turn
             out = model.rollout_changes(points, batch.v0, batch.w0, steps, warm_v if K else None, warm_w if K else None, **kwargs)
-            changes, fed = as_float64(out["changes"]), as_float64(out["fed"])
-            deltas = {k: changes[..., 3 * i : 3 * i + 3] for i, k in enumerate(DELTA_KEYS)}
-            fed_v, fed_w = fed[..., :3], fed[..., 3:]
-            topple = None if out["topple_probability"] is None else as_float64(out["topple_probability"])
-            v = batch.v0 if not steps else fed_v[:, -1] + deltas["delta_linear_velocity"][:, -1]
-            w = batch.w0 if not steps else fed_w[:, -1] + deltas["delta_angular_velocity"][:, -1]
-        else:
-            deltas, fed_v, fed_w, topple, v, w = reference_loop(model, points, batch, (warm_v, warm_w), spin, warm_turn)
+            return self._motion(batch, out["changes"], out["fed"], out["topple_probability"], K)
+        deltas, fed_v, fed_w, topple, v, w = reference_loop(model, points, batch, (warm_v, warm_w), spin, warm_turn)
         if topple is None and steps == 0 and self.predicts_topple:
+            topple = np.zeros((batch.size, 0))
+        return Motion(deltas, fed_v, fed_w, v, w, K, topple)
+
+    def _motion(self, batch: PreparedBatch, changes: Any, fed: Any, topple: Any, K: int) -> Motion:
+        """A ``Motion`` from ``rollout_changes``' arrays: changes (B, S, 12), fed (B, S, 6), topple (B, S) or None."""
+        changes, fed = as_float64(changes), as_float64(fed)
+        deltas = {k: changes[..., 3 * i : 3 * i + 3] for i, k in enumerate(DELTA_KEYS)}
+        fed_v, fed_w = fed[..., :3], fed[..., 3:]
+        topple = None if topple is None else as_float64(topple)
+        v = batch.v0 if not batch.steps else fed_v[:, -1] + deltas["delta_linear_velocity"][:, -1]
+        w = batch.w0 if not batch.steps else fed_w[:, -1] + deltas["delta_angular_velocity"][:, -1]
+        if topple is None and batch.steps == 0 and self.predicts_topple:
             topple = np.zeros((batch.size, 0))
         return Motion(deltas, fed_v, fed_w, v, w, K, topple)
 
@@ -91,11 +100,30 @@ class ContactPriorMotion(NetworkMotion):
         rate_hz: float = 15.0  # without weights: the steps' rate
         num_points: int = 256  # without weights: the hull_surface cloud whose footprint it reads
 
+    takes_friction = True
+
     def __init__(self, network: DynamicsNetwork):
         if not network.changes_are_the_prior():
             raise ConfigError("motion 'contact_prior': the weights hold a network whose changes are not its prior's; "
                               "name motion 'network' for it")
         super().__init__(network)
+
+    def run(self, batch: PreparedBatch, with_topple: bool) -> Motion:
+        if batch.friction is None:
+            return super().run(batch, with_topple)
+        if batch.warm_linear.shape[1]:
+            raise PredictionError("a warm start and a friction of its own for each push do not go together; drop one")
+        # friction is an input of the prior, not a weight: each push slides at its own (the numpy roll-out)
+        model = self.network
+        spin = batch.spin_inertia
+        code = model.encode_points(batch.model_cloud(), None if spin is None else torch.as_tensor(spin))
+        geometry = model.split_code(code)[1].double().numpy()
+        out = prior_rollout(geometry, batch.v0, batch.w0, batch.steps, model.prior_dt, batch.friction,
+                            model.prior_gravity, model.config.model.contact_substeps)
+        topple = None
+        if with_topple and model.predicts_topple:  # the head's bias, as the torch roll-out gives it
+            topple = np.full((batch.size, batch.steps), float(torch.sigmoid(model.head.linear.bias[NUM_CHANGES])))
+        return self._motion(batch, out["changes"], out["fed"], topple, 0)
 
     @classmethod
     def build(cls, config: Any, source: Any) -> "ContactPriorMotion":

@@ -77,6 +77,8 @@ class PreparedBatch:
     lengths (B,) or None: each push's own number of states where the batch is padded to its longest.
     hull_counts (B,) or None: how many of each ``points_body`` cloud's first points are its mesh's hull vertices.
     with_changes: whether the result carries the per-step changes (``delta_*``) or only the states.
+    friction (B,) or None: each push's effective Coulomb coefficient with the ground (None: the model's own),
+    for a motion stage that ``takes_friction``.
     """
 
     points_body: np.ndarray
@@ -94,6 +96,7 @@ class PreparedBatch:
     hull_counts: np.ndarray | None = None
     with_changes: bool = True
     cache: BodyCache = field(default_factory=BodyCache)
+    friction: np.ndarray | None = None
     _turned: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict, repr=False)
     _thinned: dict[tuple[int, int], np.ndarray] = field(default_factory=dict, repr=False)
     _model_cloud: np.ndarray | None = field(default=None, repr=False)
@@ -196,6 +199,7 @@ class MotionStage(Stage):
     network: Any = None
     predicts_topple: bool = False  # whether ``run(..., with_topple=True)`` gives the head's probabilities
     reads_stage_cloud: bool = False  # whether it reads ``PreparedBatch.given_points_body`` too
+    takes_friction: bool = False  # whether it reads ``PreparedBatch.friction`` (else it predicts at its own)
 
     @abstractmethod
     def run(self, batch: PreparedBatch, with_topple: bool) -> Motion:

@@ -3,6 +3,7 @@ properties and collision hull (``RigidBodySpec``), the point cloud the model see
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import os
 from dataclasses import dataclass, field
@@ -18,6 +19,7 @@ from physdyn.geometry.mesh_io import load_mesh
 from physdyn.sim.body import body_surface_points, rigid_body
 from physdyn.sim.trajectory import resting_com_position
 
+MAX_FRICTION = 2.0  # an effective coefficient beyond this is a units or product-of-two-frictions mistake
 POINTS_SEED = 0  # fixed: the same mesh always gets the same cloud, so predictions are reproducible
 IN_MEMORY = "<in-memory>"
 
@@ -32,7 +34,21 @@ class PreparedBody:
     name: str
     notes: list[str] = field(default_factory=list)
     scale: float = 1.0  # applied to the file's coordinates to get metres
+    # the effective Coulomb coefficient of its contact with the ground (None: the model's own, what it was
+    # trained at); a model whose motion takes friction (`fast`, `contact_prior`) slides it accordingly
+    friction: float | None = None
     _points: dict[tuple[int, str], np.ndarray] = field(default_factory=dict, repr=False)
+
+    def with_friction(self, friction: float | None) -> "PreparedBody":
+        """This body on a ground of effective Coulomb coefficient ``friction`` (0 < mu <= MAX_FRICTION; None:
+        the model's own); the preparation and the clouds are shared, not copied."""
+        if friction is not None:
+            mu = float(friction) if isinstance(friction, (int, float, np.floating, np.integer)) and not isinstance(friction, bool) else float("nan")
+            if not 0.0 < mu <= MAX_FRICTION:
+                raise PredictionError(f"friction must be an effective Coulomb coefficient above 0 and at most "
+                                      f"{MAX_FRICTION:g}, got {friction!r}; e.g. --friction 0.25 (the conventions' default)")
+            friction = mu
+        return dataclasses.replace(self, friction=friction)
 
     def points_body(self, num_points: int, method: str = "surface") -> np.ndarray:
         """(num_points, 3) float32 points in the body frame (mesh axes, origin at the com), in the

@@ -19,7 +19,6 @@ import warnings
 from typing import Any, Sequence
 
 import numpy as np
-import torch
 
 from physdyn.config.uncertainty import resolve_uncertainty
 from physdyn.errors import PhysdynError, PredictionError, PredictionWarning
@@ -34,7 +33,8 @@ from physdyn.pipeline.spread import SampledPushes
 from physdyn.pipeline.stages import BodyCache
 from physdyn.predict.body import PreparedBody, preparation_key, prepare_body
 from physdyn.predict.request_checks import (MAX_ANGULAR_SPEED, MAX_LINEAR_SPEED, MAX_SECONDS, _boolean, _orientations,  # noqa: F401
-                                            _per_request, _per_request_values, as_vector, check_orientation, check_seconds)
+                                            _per_request, _per_request_values, as_vector, check_orientation, check_seconds,
+                                            resolve_device)
 from physdyn.predict.simulator import SIMULATOR_NAME, simulate_from_state
 from physdyn.sim.trajectory import TOPPLE_ANGLE, resting_com_positions
 
@@ -125,7 +125,8 @@ class Predictor:
         ``com_position`` (T, 3), ``orientation_xyzw`` (T, 4), ``linear_velocity`` (T, 3),
         ``angular_velocity`` (T, 3), ``topple_probability`` (T,) or None, ``toppled``, ``com_mesh`` (3,),
         ``mesh``, ``checkpoint``; with ``compare_sim`` also ``simulated`` with the same keys from PyBullet.
-        A note about the mesh (e.g. an open surface) is issued as a ``PredictionWarning``.
+        A note about the mesh (e.g. an open surface) is issued as a ``PredictionWarning``. The ground's
+        friction is the body's (``prepare_body(mesh).with_friction(mu)``), else the model's own.
         """
         v0 = as_vector(lin_vel, "linear velocity (lin_vel)")
         w0 = as_vector(ang_vel, "angular velocity (ang_vel)")
@@ -166,7 +167,8 @@ class Predictor:
                 # the 45 degree rule on its poses
                 results[r] = self._result(out, out["topple_probability"], bool(rolled.toppled[b]), bodies[r], self.name)
         for r in np.flatnonzero(compare):
-            sim = simulate_from_state(bodies[r].spec, q0[r], v0[r], w0[r], self.rate_hz, steps[r], self.physics)
+            sim = simulate_from_state(bodies[r].spec, q0[r], v0[r], w0[r], self.rate_hz, steps[r], self.physics,
+                                      bodies[r].friction)
             results[r]["simulated"] = self._result(sim, sim["topple_label"].astype(np.float64),
                                                    bool(sim["topple_label"].any()), bodies[r], SIMULATOR_NAME)
         return results  # type: ignore[return-value]
@@ -200,15 +202,22 @@ class Predictor:
         out: dict[str, Any] = {"kind": "distribution", "rate_hz": self.rate_hz,
                                "time": np.arange(T, dtype=np.float64) / self.rate_hz}
         if stage.rolls_out_samples:
-            lin, ang, _ = sample_requests(v0, w0, None, config, count, seed)
+            # friction too, where the motion takes it
+            mu = self.frictions([body]) if body.friction is not None else None
+            if mu is None and getattr(self.model.motion, "takes_friction", False) and self.own_friction is not None:
+                mu = np.array([self.own_friction])
+            lin, ang, mus = sample_requests(v0, w0, mu, config, count, seed)
             v, w = _velocities(lin[0], ang[0], count)
             p, q = np.empty((count, T, 3)), np.empty((count, T, 4))
             toppled, by_step = np.zeros(count, dtype=bool), np.zeros((count, T))
             # one body, one length: the batches are the samples themselves, in order
-            for idx, rolled in self._rollouts([body] * count, (q0, v, w), [T] * count, 1024):
+            for idx, rolled in self._rollouts([body] * count, (q0, v, w), [T] * count, 1024,
+                                              None if mus is None else mus[0]):
                 p[idx], q[idx], toppled[idx] = rolled.com_position, rolled.orientation_xyzw, rolled.toppled
                 by_step[idx] = self._topple_by_step(rolled, q0[idx])
             out.update(sample_lin_vel=v, sample_ang_vel=w)
+            if mus is not None:
+                out["sample_friction"] = mus[0]
         else:
             # the push as given, rolled out alone (``predict``'s roll-out), and the samples drawn around it
             _, rolled = next(self._rollouts([body], (q0[:1], v0[None], w0[None]), [T], 1))
@@ -231,11 +240,14 @@ class Predictor:
             return np.asarray(rolled.topple_probability, dtype=np.float64)
         return (tilt_angle(q0[:, None], rolled.orientation_xyzw) > TOPPLE_ANGLE).astype(np.float64)
 
-    def _rollouts(self, bodies: list[PreparedBody], start: tuple, steps: list[int], chunk_size: int):
+    def _rollouts(self, bodies: list[PreparedBody], start: tuple, steps: list[int], chunk_size: int,
+                  friction: np.ndarray | None = None):
         """The roll-outs of R requests as batches: yields (idx, ``RolloutResult``) per chunk of at most
         ``chunk_size`` requests, idx (B,) the requests of its rows. start: q0 (R, 4), v0, w0 (R, 3); steps: each
-        request's T. ``predict_many`` and ``predict_distribution`` both roll out through here."""
+        request's T; friction (R,): each request's, where not its body's (``own_friction``).
+        ``predict_many`` and ``predict_distribution`` both roll out through here."""
         q0, v0, w0 = start
+        friction = self.frictions(bodies) if friction is None else friction
         p0, spin_inertia, body_inertia = _posed(bodies, q0)
         points = np.stack([body.points_body(self.num_points, self.points_method) for body in bodies])
         # a hull_surface cloud's first points are its mesh's hull vertices: thinning it needs no qhull
@@ -255,9 +267,25 @@ class Predictor:
             options = RolloutOptions(topple_points_body=None if topple_points is None else topple_points[idx],
                                      spin_inertia=spin_inertia[idx], body_inertia=body_inertia[idx],
                                      lengths=np.array([steps[r] for r in idx]), with_changes=False,
-                                     hull_counts=None if hulls is None else hulls[idx])
+                                     hull_counts=None if hulls is None else hulls[idx],
+                                     friction=None if friction is None else friction[idx])
             batch = prepared_batch(points[idx], (q0[idx], p0[idx], v0[idx], w0[idx]), longest - 1, options, self._prepared)
             yield idx, run_stages(self.model, batch)
+
+    @property
+    def own_friction(self) -> float | None:
+        """The effective Coulomb coefficient the model predicts at when a body gives none (its prior's; None
+        where it has no prior that reads one)."""
+        return getattr(self.model.network, "prior_friction", None)
+
+    def frictions(self, bodies: list[PreparedBody]) -> np.ndarray | None:
+        """(R,) each body's ground friction (``PreparedBody.with_friction``), the model's own where a body gives
+        none; None where none gives one (the model's own throughout)."""
+        given = [body.friction for body in bodies]
+        if all(mu is None for mu in given):
+            return None
+        own = self.own_friction
+        return np.array([own if mu is None else mu for mu in given], dtype=np.float64)
 
     def forget_meshes(self) -> None:
         """Forget every mesh prepared so far (this predictor's body cache: preparations, thinned clouds, the
@@ -311,21 +339,6 @@ class Predictor:
             "mesh_scale": body.scale,  # the mesh file's units to metres, so a viewer can draw it again
             "checkpoint": source,
         }
-
-
-def resolve_device(device: str) -> str:
-    """"cpu", "cuda" (or "cuda:N"), or "auto" (the GPU when torch sees one) -> a torch device name."""
-
-    name = str(device).lower()
-    if name == "auto":
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    if name.startswith("cuda"):
-        if not torch.cuda.is_available():
-            raise PhysdynError(f"device '{device}': torch sees no CUDA GPU here; use --device cpu (or auto)")
-        return name
-    if name != "cpu":
-        raise PhysdynError(f"device '{device}': use cpu, cuda or auto")
-    return name
 
 
 def contact_prior_predictor(physics: Any = None, rate_hz: float = 15.0, num_points: int = 256) -> Predictor:

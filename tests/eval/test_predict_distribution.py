@@ -18,6 +18,7 @@ from physdyn.cli import main as cli_main
 from physdyn.pipeline.distribution import QUANTILE_LEVELS, sample_requests, summarise
 from physdyn.predict.prediction_files import read_prediction
 from physdyn.pipeline.spread import SampledPushes
+from physdyn.predict.body import prepare_body
 from physdyn.predict.predictor import Predictor, load_predictor
 from physdyn.viz.viewer import read_viewer_data
 
@@ -66,8 +67,12 @@ def test_zero_uncertainty_gives_predicts_trajectory_for_every_sample(predictor, 
 
 def test_sampled_pushes_are_predict_manys_trajectories_to_the_bit(sampled, mesh_file):
     dist = sampled.predict_distribution(mesh_file, LIN, ANG, SECONDS, samples=8, seed=3)
+    # the contact prior takes friction, so the pushes' frictions are drawn too
+    assert dist["sample_friction"].std() > 0 and abs(dist["sample_friction"].mean() - sampled.own_friction) < 0.03
+    body = prepare_body(mesh_file)
     predictor = sampled
-    many = predictor.predict_many([mesh_file] * 8, dist["sample_lin_vel"], dist["sample_ang_vel"], SECONDS)
+    many = predictor.predict_many([body.with_friction(mu) for mu in dist["sample_friction"]], dist["sample_lin_vel"],
+                                  dist["sample_ang_vel"], SECONDS)
     for s, result in enumerate(many):
         np.testing.assert_array_equal(dist["com_position"][s], result["com_position"])
         np.testing.assert_array_equal(dist["orientation_xyzw"][s], result["orientation_xyzw"])
