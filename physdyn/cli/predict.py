@@ -25,7 +25,7 @@ examples:
 
 --batch reads one JSON object per line, e.g.
   {"mesh": "mug.obj", "lin_vel": [1.2, 0, 0], "ang_vel": [0, 0, 3], "seconds": 4, "out": "mug.json"}
-(optional keys: orientation_xyzw, scale, friction, compare_sim, render; for a distribution samples, uncertainty (a
+(optional keys: orientation_xyzw, scale, friction (default: --friction), compare_sim, render; for a distribution samples, uncertainty (a
 preset name or a mapping such as {"speed_rel": 0.05}), seed, plot). Paths in a line are relative to the
 requests file's folder (mesh) and to --out-dir (out, render). A bad line is reported with its number and
 the others still run; the exit status is 2 if any line failed. Output format: docs/predict.md."""
@@ -86,7 +86,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     d.add_argument("--spin-sd", type=float, metavar="X", help="relative spread of each angular velocity axis, times |w|")
     d.add_argument("--spin-sd-abs", type=float, metavar="X", help="absolute spread of each angular velocity axis, rad/s")
     d.add_argument("--friction-sd", type=float, metavar="X", help="relative spread of friction (widens fast's spread along "
-                   "the travel; a model's sampled pushes keep the friction it was trained at)")
+                   "the travel; sampled pushes draw it where the model takes friction: fast, contact_prior)")
     d.add_argument("--seed", type=int, default=0, help="seed of the samples (default: %(default)s)")
     d.add_argument("--plot", metavar="FILE.png", help="with --samples: a plot of the final positions with their 50 %% and 90 %% regions")
     p.add_argument("--device", default="cpu", help="where the model runs: cpu, cuda or auto (default: %(default)s)")
@@ -94,6 +94,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from physdyn.predict.body import check_friction
+
+    check_friction(args.friction)  # before any mesh is read: a bad value fails at once
     if args.batch:
         clash = [flag for flag, value in (("MESH", args.mesh), ("--lin-vel", args.lin_vel), ("--ang-vel", args.ang_vel),
                                           ("--out", args.out), ("--render", args.render), ("--orientation", args.orientation))
@@ -352,5 +355,5 @@ def _read_request(line: str, number: int, base, out_dir, args, bodies: dict) -> 
             warnings.simplefilter("always")
             bodies[key] = prepare_body(mesh, float(scale))
         print_mesh_notes(notes, f"line {number}: ")
-    request["body"] = bodies[key].with_friction(req.get("friction"))
+    request["body"] = bodies[key].with_friction(req.get("friction", args.friction))
     return request

@@ -11,8 +11,10 @@ probability is the forecast's, as ``Predictor.predict_distribution`` gives it (t
 one's probability of having toppled by the end), against each member's topple label. The deterministic
 forecast, one roll-out of the unperturbed push, is scored the same way beside it.
 
-Friction is not varied in sampled pushes (the model predicts at the friction it was trained at), while the
-members' friction is: that spread is part of the reference the forecast is scored against.
+Sampled pushes vary the friction too where the motion takes it (the contact prior: ``fast``, ``contact_prior``);
+other models predict at the friction they were trained at, while the members' friction varies: that spread is
+then part of the reference the forecast is scored against. Either forecast starts from the push's recorded
+friction where the motion takes it.
 
 Shapes: P pushes, N samples, K members, T steps of a member (step 0 included).
 """
@@ -27,6 +29,7 @@ import numpy as np
 from physdyn.config.uncertainty import UncertaintyConfig, resolve_uncertainty
 from physdyn.data.store import StoreData, load_store
 from physdyn.eval.evaluate import EvaluationError, select_sequences, store_rollouts
+from physdyn.eval.rollout import as_pipeline
 from physdyn.eval.scores import COVERAGE_LEVELS, DistributionScores, score_pushes
 from physdyn.geometry.rotations import tilt_angle
 from physdyn.pipeline.distribution import MIN_REGION_SAMPLES, check_samples, sample_requests
@@ -64,15 +67,24 @@ def sampled_outcomes(predictor: Any, store: StoreData, sims: np.ndarray, uncerta
     """N = ``samples`` roll-outs of each push of ``sims`` (P,), for the members' horizon: ``com_position``
     (P, N, T, 3), ``orientation_xyzw`` (P, N, T, 4), ``toppled`` (P, N) bool by each roll-out's own end,
     ``topple_by_step`` (P, N, T) each roll-out's probability of having toppled by step t (its topple output's
-    running maximum, or the 45 degree rule), and the sampled step-0 velocities ``lin_vel0``, ``ang_vel0`` (P, N, 3)."""
+    running maximum, or the 45 degree rule), and the sampled step-0 velocities ``lin_vel0``, ``ang_vel0`` (P, N, 3).
+    A motion that takes friction (the contact prior) rolls each sample out at a friction drawn around the
+    push's recorded one."""
     P, N = len(sims), int(samples)
     steps = store.extra["ensemble/com_position"].shape[2] - 1
     first = store.start[sims]
-    lin, ang, _ = sample_requests(store.linear_velocity[first], store.angular_velocity[first], None, uncertainty, N, seed)
+    # a motion that takes friction has each sample's drawn too, around the push's own, as `predict` does
+    pipeline = as_pipeline(predictor)
+    mu = np.asarray(store.friction, dtype=np.float64)[sims]
+    takes = pipeline.motion.takes_friction and getattr(pipeline.network, "prior_friction", None) is not None
+    if not takes or np.isnan(mu).any():
+        mu = None
+    lin, ang, mus = sample_requests(store.linear_velocity[first], store.angular_velocity[first], mu, uncertainty, N, seed)
     rows = np.repeat(sims, N)  # push-major: the N samples of a push are consecutive rows
     q0 = np.repeat(store.orientation_xyzw[first], N, axis=0)
     start = (q0, np.repeat(store.com_position[first], N, axis=0), lin.reshape(P * N, 3), ang.reshape(P * N, 3))
-    rolled = store_rollouts(predictor, store, rows, start, steps, batch_size=ROWS_PER_BATCH, seed=seed)
+    rolled = store_rollouts(predictor, store, rows, start, steps, batch_size=ROWS_PER_BATCH, seed=seed,
+                            friction=None if mus is None else mus.reshape(P * N))
     T = steps + 1
     if rolled.topple_probability is not None:
         by_step = np.asarray(rolled.topple_probability, dtype=np.float64)
@@ -87,8 +99,9 @@ def sampled_outcomes(predictor: Any, store: StoreData, sims: np.ndarray, uncerta
 def forecast_outcomes(predictor: Any, store: StoreData, sims: np.ndarray, uncertainty: UncertaintyConfig, samples: int,
                       seed: int = 0) -> dict[str, np.ndarray]:
     """The pipeline's distribution forecast (its distribution stage: ``physdyn.pipeline.spread``) of each push of
-    ``sims``: the keys of ``sampled_outcomes``, and ``topple_probability`` (P,) the forecast's probability of
-    having toppled by the end (as ``Predictor.predict_distribution`` gives it)."""
+    ``sims``: ``com_position``, ``orientation_xyzw``, ``toppled`` and ``topple_by_step`` as ``sampled_outcomes``
+    gives them (with sampled pushes, also their velocities), and ``topple_probability`` (P,) the forecast's
+    probability of having toppled by the end (as ``Predictor.predict_distribution`` gives it)."""
     stage = getattr(predictor, "distribution", None) or SampledPushes()
     if stage.rolls_out_samples or uncertainty.is_zero:
         out = sampled_outcomes(predictor, store, sims, uncertainty, samples, seed)

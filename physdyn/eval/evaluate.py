@@ -125,14 +125,17 @@ def predict_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, truth: 
 
 
 def store_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, start: tuple, steps: int,
-                   warm: tuple[np.ndarray, np.ndarray] | None = None, batch_size: int = 256, seed: int = 0) -> RolloutResult:
+                   warm: tuple[np.ndarray, np.ndarray] | None = None, batch_size: int = 256, seed: int = 0,
+                   friction: np.ndarray | None = None) -> RolloutResult:
     """A model (``Pipeline`` or bare network) rolled out ``steps`` from ``start`` = (q0 (B, 4), p0, v0, w0 (B, 3)),
-    row b on the body and cloud of ``sims[b]`` (repeats allowed); warm: true velocities of steps 1..K, (B, K, 3) each."""
+    row b on the body and cloud of ``sims[b]`` (repeats allowed); warm: true velocities of steps 1..K, (B, K, 3)
+    each; friction (B,): each row's, where not its simulation's (``store_friction``)."""
     rng = np.random.default_rng(seed)
     pipeline = as_pipeline(predictor)
     topple, parts = pipeline.topple, []
     check_store_clouds(pipeline, store)
-    friction = None if warm else store_friction(pipeline, store.friction, sims)  # a warm start is at the model's own
+    if friction is None and not warm:  # a warm start is at the model's own
+        friction = store_friction(pipeline, store.friction, sims)
     for sl in _chunks(len(sims), batch_size):
         q0, p0, v0, w0 = (x[sl] for x in start)
         points = _model_points(store, sims[sl], pipeline.network.num_points, rng)
@@ -145,7 +148,6 @@ def store_rollouts(predictor: Any, store: StoreData, sims: np.ndarray, start: tu
             body_inertia=store_world_inertia(store, sims[sl], q0) if simulates else None,
             friction=None if friction is None else friction[sl])))
     return _concat(parts)
-
 
 
 def _shape_single_steps(baseline: Baseline, store: StoreData, sims: np.ndarray, truth: dict[str, np.ndarray],

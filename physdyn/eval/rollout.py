@@ -161,7 +161,7 @@ def teacher_forced(
 def store_friction(pipeline: Pipeline, friction: np.ndarray, sims: np.ndarray) -> np.ndarray | None:
     """(B,) the friction of each simulation of ``sims`` (``friction``: a store's, (M,)), for a motion that takes
     friction on a store simulated at other frictions than the model's own; None otherwise (the model's own
-    throughout: the roll-out as it was)."""
+    throughout, and the roll-out takes its default path)."""
     own = getattr(pipeline.network, "prior_friction", None)
     mu = np.asarray(friction, dtype=np.float64)[sims]
     # a store that does not know its friction (imported trials: NaN) is rolled out at the model's own

@@ -117,7 +117,7 @@ class ContactPriorMotion(NetworkMotion):
         model = self.network
         spin = batch.spin_inertia
         code = model.encode_points(batch.model_cloud(), None if spin is None else torch.as_tensor(spin))
-        geometry = model.split_code(code)[1].double().numpy()
+        geometry = model.split_code(code)[1].double().cpu().numpy()
         out = prior_rollout(geometry, batch.v0, batch.w0, batch.steps, model.prior_dt, batch.friction,
                             model.prior_gravity, model.config.model.contact_substeps)
         topple = None

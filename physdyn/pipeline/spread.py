@@ -76,6 +76,10 @@ class CalibratedSpread(DistributionStage):
         # where a sample drawn as toppled ends, along and across (push and model together): toppling moves a
         # body off the path it slid along
         toppled: list = field(default_factory=lambda: [[-9.0, 0.0, 0.0]] * 2)
+        # the roll-outs' travel (m) and |turn| (rad) the laws were fitted over: a power law holds there, and
+        # beyond it the spread is the nearest edge's (a spin in place would otherwise read as a tiny travel)
+        travel_range: list = field(default_factory=lambda: [0.0, 1e9])
+        turn_range: list = field(default_factory=lambda: [0.0, 1e9])
         fitted_on: str = ""  # what the coefficients were fitted on, for the model card
 
     def __init__(self, config: "CalibratedSpread.Config | None" = None):
@@ -83,12 +87,26 @@ class CalibratedSpread(DistributionStage):
         self.push = _coefficients(self.config.push, "push")
         self.model = _coefficients(self.config.model, "model")
         self.toppled = _coefficients(self.config.toppled, "toppled", 2)
+        ranges = [_range(self.config.travel_range, "travel_range"), _range(self.config.turn_range, "turn_range")]
+        self.feature_low = np.log(np.array([r[0] for r in ranges]) + FEATURE_FLOORS)
+        self.feature_high = np.log(np.array([r[1] for r in ranges]) + FEATURE_FLOORS)
+
+    def within_range(self, features: np.ndarray) -> np.ndarray:
+        """(P, NUM_FEATURES) with travel and turn clipped to the range the laws were fitted over."""
+        out = np.array(features, dtype=np.float64)
+        out[:, 1:] = np.clip(out[:, 1:], self.feature_low, self.feature_high)
+        return out
 
     def sigmas(self, features: np.ndarray, scale: np.ndarray) -> np.ndarray:
         """(P, NUM_FEATURES), the push part's scale (3,) (``push_scale``) -> (P, 3) standard deviations of an
         upright outcome's along (m), across (m) and turn (rad)."""
-        push = np.exp(features @ self.push.T) * scale
-        return np.sqrt(push ** 2 + np.exp(features @ self.model.T) ** 2)
+        f = self.within_range(features)
+        push = np.exp(f @ self.push.T) * scale
+        return np.sqrt(push ** 2 + np.exp(f @ self.model.T) ** 2)
+
+    def toppled_sigmas(self, features: np.ndarray) -> np.ndarray:
+        """(P, NUM_FEATURES) -> (P, 2) standard deviations of where a toppled outcome ends, along and across (m)."""
+        return np.exp(self.within_range(features) @ self.toppled.T)
 
     def spread(self, nominal, lin_vel, ang_vel, uncertainty, samples, rng):
         p = np.asarray(nominal["com_position"], dtype=np.float64)
@@ -105,7 +123,7 @@ class CalibratedSpread(DistributionStage):
         yaw = heading_turn(q)
         frame = outcome_frame(p, q, lin_vel, yaw)
         sigma = np.repeat(self.sigmas(frame["features"], push_scale(uncertainty))[:, None], N, axis=1)
-        sigma[..., :2] = np.where(verdict[..., None], np.exp(frame["features"] @ self.toppled.T)[:, None], sigma[..., :2])
+        sigma[..., :2] = np.where(verdict[..., None], self.toppled_sigmas(frame["features"])[:, None], sigma[..., :2])
         offsets = draws * sigma
         along, across = frame["along"], np.stack([-frame["along"][:, 1], frame["along"][:, 0]], axis=1)
         shift = offsets[..., 0:1] * along[:, None] + offsets[..., 1:2] * across[:, None]  # (P, N, 2) world
@@ -114,6 +132,19 @@ class CalibratedSpread(DistributionStage):
         com[..., :2] += travel[:, None, :, None] * shift[:, :, None, :]
         orientation = turn_about_vertical(turning[:, None, :] * offsets[..., 2:3], q[:, None])
         return {"com_position": com, "orientation_xyzw": orientation, "toppled": verdict}
+
+
+def _range(value: Any, key: str) -> tuple[float, float]:
+    from physdyn.errors import ConfigError
+
+    try:
+        low, high = (float(v) for v in value)
+    except (TypeError, ValueError):
+        low, high = float("nan"), float("nan")
+    if not 0.0 <= low <= high:
+        raise ConfigError(f"distribution.params.{key}: [low, high] with 0 <= low <= high expected, got {value!r}; "
+                          "`physdyn fit-spread` writes it")
+    return low, high
 
 
 def _coefficients(rows: Any, key: str, count: int = len(COMPONENTS)) -> np.ndarray:

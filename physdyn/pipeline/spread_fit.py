@@ -25,10 +25,10 @@ from scipy.optimize import minimize
 
 from physdyn.config.uncertainty import UNCERTAINTY_PRESETS
 from physdyn.geometry.rotations import quat_conjugate, quat_multiply
-from physdyn.pipeline.spread import COMPONENTS, CalibratedSpread, outcome_frame, push_scale
+from physdyn.pipeline.spread import COMPONENTS, FEATURE_FLOORS, NUM_FEATURES, CalibratedSpread, outcome_frame, push_scale
 
 MIN_MEMBERS = 3  # upright members a push needs to take part
-POWER_BOUND = 1.5  # the largest power of travel or turn a standard deviation may follow
+POWER_BOUND = 1.5  # the largest power of travel or turn a standard deviation may follow (the least: 0)
 
 
 def outcome_residuals(predictor: Any, store: Any, sims: np.ndarray) -> dict[str, np.ndarray]:
@@ -64,9 +64,10 @@ def _fit_log_sigma(features: np.ndarray, values: np.ndarray, weight: np.ndarray,
 
     start = np.zeros(features.shape[1])
     start[0] = 0.5 * np.log(max(np.average(values ** 2, weights=weight), 1e-12))
-    # travel and turn go together: unbounded, their powers can cancel into laws that fit and then explode on
-    # a push outside the data; a power within +-POWER_BOUND keeps a law a law
-    bounds = [(None, None)] + [(-POWER_BOUND, POWER_BOUND)] * (features.shape[1] - 1)
+    # travel and turn go together: unbounded, their powers can cancel into laws that fit the data and explode
+    # where one is small and the other large; a spread that never shrinks as either grows, by a power of at
+    # most POWER_BOUND, keeps a law a law
+    bounds = [(None, None)] + [(0.0, POWER_BOUND)] * (features.shape[1] - 1)
     result = minimize(loss, start, jac=True, method="L-BFGS-B", bounds=bounds)
     return result.x
 
@@ -95,19 +96,38 @@ def fit_spread(data: list[dict[str, np.ndarray]], fitted_on: str = "") -> Calibr
     """The ``calibrated`` stage's coefficients from ``outcome_residuals`` of one or more stores: the push's and
     the model's parts of each component from the upright members, and where a toppled member ends (along and
     across: one law, the push's and the model's parts together) from the toppled ones."""
+    from physdyn.errors import PhysdynError
+
+    if any(not np.all(d["scale"] > 0) for d in data):
+        raise PhysdynError("a store's ensemble was simulated at zero uncertainty in a speed, direction or spin, so "
+                           "its members cannot say how the push spreads the outcome; simulate it with ensemble."
+                           "uncertainty: default (configs/data/ensemble_calibrate.yaml)")
     push_rows, model_rows, toppled_rows = [], [], []
     for c in range(len(COMPONENTS)):
         X, y, e, scale = _rows(data, c, "upright")
+        if len(y) < 10 * X.shape[1]:
+            raise PhysdynError(f"the stores hold {len(y)} upright members of pushes with {MIN_MEMBERS} or more of them, "
+                               f"too few to fit a spread; simulate more pushes, with ensemble.members of 8 or more "
+                               "(configs/data/ensemble_calibrate.yaml)")
         ones = np.ones(len(y))
         push = _fit_log_sigma(X, y, ones, np.zeros(len(y)))
         model = _fit_log_sigma(X, e, ones, (np.exp(X @ push) * scale) ** 2)
         push_rows.append(push.round(4).tolist())
         model_rows.append(model.round(4).tolist())
         if COMPONENTS[c] != "turn":  # a toppled member's heading is not a turn about the vertical
-            X, _, e, _ = _rows(data, c, "toppled")
-            toppled = _fit_log_sigma(X, e, np.ones(len(e)), np.zeros(len(e))) if len(e) > 10 * X.shape[1] else model
+            Xt, _, et, _ = _rows(data, c, "toppled")
+            # too few toppled members: one law for the upright members' whole distance from the roll-out
+            toppled = (_fit_log_sigma(Xt, et, np.ones(len(et)), np.zeros(len(et))) if len(et) > 10 * Xt.shape[1]
+                       else _fit_log_sigma(X, e, ones, np.zeros(len(e))))
             toppled_rows.append(np.asarray(toppled).round(4).tolist())
-    return CalibratedSpread.Config(push=push_rows, model=model_rows, toppled=toppled_rows, fitted_on=fitted_on)
+    features = np.concatenate([d["features"] for d in data])
+    ranges = {}
+    if features.shape[1] == NUM_FEATURES:  # (a study may fit laws of other inputs: they are not clipped)
+        travel, turn = (np.exp(features[:, k + 1]) - FEATURE_FLOORS[k] for k in range(2))
+        # the central 96 %: a law holds where its data are, not on their few extremes
+        ranges = {key: [round(float(max(np.percentile(v, 2), 0.0)), 4), round(float(np.percentile(v, 98)), 4)]
+                  for key, v in (("travel_range", travel), ("turn_range", turn))}
+    return CalibratedSpread.Config(push=push_rows, model=model_rows, toppled=toppled_rows, fitted_on=fitted_on, **ranges)
 
 
 def spread_coverage(stage: CalibratedSpread, data: dict[str, np.ndarray], level: float = 0.9) -> np.ndarray:
@@ -118,7 +138,7 @@ def spread_coverage(stage: CalibratedSpread, data: dict[str, np.ndarray], level:
 
     upright = data["upright"]
     sigma = np.repeat(stage.sigmas(data["features"], data["scale"])[:, None], upright.shape[1], axis=1)
-    toppled = np.exp(data["features"] @ stage.toppled.T)
+    toppled = stage.toppled_sigmas(data["features"])
     sigma[..., :2] = np.where(upright[..., None], sigma[..., :2], toppled[:, None])
     inside = np.abs(data["residual"]) / sigma <= norm.ppf(0.5 + level / 2)
     counted = np.ones(inside.shape, dtype=bool)

@@ -40,15 +40,9 @@ class PreparedBody:
     _points: dict[tuple[int, str], np.ndarray] = field(default_factory=dict, repr=False)
 
     def with_friction(self, friction: float | None) -> "PreparedBody":
-        """This body on a ground of effective Coulomb coefficient ``friction`` (0 < mu <= MAX_FRICTION; None:
-        the model's own); the preparation and the clouds are shared, not copied."""
-        if friction is not None:
-            mu = float(friction) if isinstance(friction, (int, float, np.floating, np.integer)) and not isinstance(friction, bool) else float("nan")
-            if not 0.0 < mu <= MAX_FRICTION:
-                raise PredictionError(f"friction must be an effective Coulomb coefficient above 0 and at most "
-                                      f"{MAX_FRICTION:g}, got {friction!r}; e.g. --friction 0.25 (the conventions' default)")
-            friction = mu
-        return dataclasses.replace(self, friction=friction)
+        """This body on a ground of effective Coulomb coefficient ``friction`` (``check_friction``; None: the
+        model's own); the preparation and the clouds are shared, not copied."""
+        return dataclasses.replace(self, friction=check_friction(friction))
 
     def points_body(self, num_points: int, method: str = "surface") -> np.ndarray:
         """(num_points, 3) float32 points in the body frame (mesh axes, origin at the com), in the
@@ -63,6 +57,19 @@ class PreparedBody:
         mesh's convex hull (``hull_surface_points`` puts them first): what thinning that cloud takes as its
         hull, with no qhull (``thin_hull_surface``)."""
         return min(len(self.spec.hull_vertices), int(num_points))  # (body_vertices() would turn them all to count them)
+
+
+def check_friction(friction: Any) -> float | None:
+    """``friction`` as an effective Coulomb coefficient, 0 < mu <= MAX_FRICTION (None stays None); a one-line
+    ``PredictionError`` naming the fix otherwise."""
+    if friction is None:
+        return None
+    number = isinstance(friction, (int, float, np.floating, np.integer)) and not isinstance(friction, bool)
+    mu = float(friction) if number else float("nan")
+    if not 0.0 < mu <= MAX_FRICTION:
+        raise PredictionError(f"friction must be an effective Coulomb coefficient above 0 and at most {MAX_FRICTION:g}, "
+                              f"got {friction!r}; e.g. 0.25, the conventions' default")
+    return mu
 
 
 def prepare_body(mesh: Any, scale: float = 1.0, density: float | None = None) -> PreparedBody:

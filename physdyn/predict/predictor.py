@@ -32,9 +32,9 @@ from physdyn.pipeline.presets import build_pipeline, load_pipeline, preset_file,
 from physdyn.pipeline.spread import SampledPushes
 from physdyn.pipeline.stages import BodyCache
 from physdyn.predict.body import PreparedBody, preparation_key, prepare_body
+from physdyn.predict.device import resolve_device
 from physdyn.predict.request_checks import (MAX_ANGULAR_SPEED, MAX_LINEAR_SPEED, MAX_SECONDS, _boolean, _orientations,  # noqa: F401
-                                            _per_request, _per_request_values, as_vector, check_orientation, check_seconds,
-                                            resolve_device)
+                                            _per_request, _per_request_values, as_vector, check_orientation, check_seconds)
 from physdyn.predict.simulator import SIMULATOR_NAME, simulate_from_state
 from physdyn.sim.trajectory import TOPPLE_ANGLE, resting_com_positions
 

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from physdyn.errors import PhysdynError, PredictionError
+from physdyn.errors import PredictionError
 
 MAX_LINEAR_SPEED = 50.0  # m/s; training pushes are 0.5-2 m/s
 MAX_ANGULAR_SPEED = 500.0  # rad/s
@@ -104,20 +104,3 @@ def _boolean(value: Any, name: str) -> bool:
 def _short(value: Any) -> str:
     text = " ".join(str(v) for v in np.ravel(value)) if np.ndim(value) else str(value)
     return text if len(text) <= 60 else text[:57] + "..."
-
-
-def resolve_device(device: str) -> str:
-    """"cpu", "cuda" (or "cuda:N"), or "auto" (the GPU when torch sees one) -> a torch device name."""
-
-    import torch
-
-    name = str(device).lower()
-    if name == "auto":
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    if name.startswith("cuda"):
-        if not torch.cuda.is_available():
-            raise PhysdynError(f"device '{device}': torch sees no CUDA GPU here; use --device cpu (or auto)")
-        return name
-    if name != "cpu":
-        raise PhysdynError(f"device '{device}': use cpu, cuda or auto")
-    return name

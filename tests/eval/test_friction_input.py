@@ -92,9 +92,14 @@ def test_the_command_line_and_a_batch_line_take_friction(tmp_path):
                         + json.dumps({"mesh": "box.obj", "lin_vel": LIN, "ang_vel": ANG, "out": "c.json"}) + "\n")
     code, _, err = cli("predict", "--batch", requests, "--out-dir", tmp_path / "out")
     assert code == 0, err
+    # --friction is every line's default, as the line's own "friction" is its own
+    code, _, err = cli("predict", "--batch", requests, "--out-dir", tmp_path / "low", "--friction", 0.1)
+    assert code == 0, err
+    low = json.loads((tmp_path / "low" / "c.json").read_text())
     a, b, c = (json.loads(p.read_text()) for p in (tmp_path / "a.json", tmp_path / "out" / "b.json", tmp_path / "out" / "c.json"))
     np.testing.assert_allclose(a["com_position"], b["com_position"], atol=1e-6)
     assert a["com_position"][-1][0] > c["com_position"][-1][0] + 0.05  # less friction, a longer slide
+    np.testing.assert_allclose(low["com_position"], a["com_position"], atol=1e-6)
 
 
 def test_physdyn_test_rolls_out_at_each_simulations_friction(tmp_path):

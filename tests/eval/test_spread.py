@@ -92,11 +92,42 @@ def test_the_fit_recovers_laws_from_data_drawn_from_them():
     np.testing.assert_allclose(spread_coverage(fitted, data), 0.9, atol=0.015)
 
 
+def test_outside_the_fitted_range_the_spread_is_the_edges():
+    # a spin in place barely travels: its spread is that of the least travel the laws were fitted on, not a power
+    # law's extrapolation (which grows without bound as travel goes to zero with a negative power)
+    laws = CalibratedSpread.Config(push=LAWS.push, model=[[-4.0, -1.0, 1.0], [-4.5, 0.5, 0.0], [-2.5, 0.0, 0.3]],
+                                   toppled=LAWS.toppled, travel_range=[0.05, 0.8], turn_range=[0.05, 6.0])
+    stage = CalibratedSpread(laws)
+    scale = push_scale(resolve_uncertainty("default"))
+    features = lambda travel, turn: np.array([[1.0, np.log(travel + 0.01), np.log(turn + 0.05)]])  # noqa: E731
+    np.testing.assert_allclose(stage.sigmas(features(0.001, 30.0), scale), stage.sigmas(features(0.05, 6.0), scale))
+    np.testing.assert_allclose(stage.toppled_sigmas(features(5.0, 0.0)), stage.toppled_sigmas(features(0.8, 0.05)))
+    inside = stage.sigmas(features(0.3, 1.0), scale)
+    assert not np.allclose(inside, stage.sigmas(features(0.05, 6.0), scale))
+
+
+def test_the_fit_refuses_stores_that_cannot_say_the_spread():
+    from physdyn.errors import PhysdynError
+
+    rng = np.random.default_rng(2)
+    features = np.stack([np.ones(200), rng.uniform(-4, 0, 200), rng.uniform(-3, 1, 200)], axis=1)
+    data = {"features": features, "residual": rng.standard_normal((200, 8, 3)) * 0.01, "upright": np.ones((200, 8), bool),
+            "scale": np.ones(3)}
+    with pytest.raises(PhysdynError, match="zero uncertainty"):
+        fit_spread([{**data, "scale": np.array([1.0, 0.0, 1.0])}])
+    with pytest.raises(PhysdynError, match="too few"):
+        fit_spread([{**data, "upright": np.zeros((200, 8), bool)}])
+    fitted = fit_spread([data])  # all upright: where a toppled sample ends falls back to a law of the upright ones
+    assert np.isfinite(np.asarray(fitted.toppled)).all() and fitted.travel_range[0] <= fitted.travel_range[1]
+
+
 def test_bad_coefficients_are_a_one_line_config_error():
     with pytest.raises(ConfigError, match="distribution.params.model: 3 rows"):
         CalibratedSpread(CalibratedSpread.Config(model=[[1.0, 2.0]]))
     with pytest.raises(ConfigError, match="distribution.params.push"):
         CalibratedSpread(CalibratedSpread.Config(push=[[np.nan, 0, 0]] * 3))
+    with pytest.raises(ConfigError, match="distribution.params.travel_range"):
+        CalibratedSpread(CalibratedSpread.Config(travel_range=[0.5, 0.1]))
 
 
 def test_fit_spread_writes_a_preset_that_predicts_and_tests(tmp_path):
