@@ -8,6 +8,9 @@
    roll-out, and fewer.
 2. Shape: the fitted laws' standard deviations with Gaussian, Laplace and Student-t draws (each scaled to that
    standard deviation, and at 0.7 of it), scored on the test split of the evaluation store.
+3. Toppled poses: the shipped forecast's samples drawn as toppled, left in the roll-out's upright pose or tipped
+   by 90 degrees about the axis across the travel (the top falling forward, or back), scored by the energy
+   score of the final orientation on the same test split (``physdyn test``'s forecast).
 
 Scores per component (along and across the travel, cm; the turn, degrees), over the upright members (the
 laws compared are theirs; a toppled draw has a law of its own): the mean fair CRPS of the component's draws
@@ -23,8 +26,11 @@ import numpy as np
 from scipy.stats import norm
 
 from physdyn.data.store import load_store
+from physdyn.eval.distribution_eval import evaluate_distribution
 from physdyn.eval.evaluate import select_sequences
-from physdyn.pipeline.spread import COMPONENTS, CalibratedSpread
+from physdyn.eval.scores import score_pushes
+from physdyn.geometry.rotations import quat_multiply
+from physdyn.pipeline.spread import COMPONENTS, outcome_frame
 from physdyn.pipeline.spread_fit import fit_spread, outcome_residuals
 from physdyn.predict.predictor import load_predictor
 
@@ -109,6 +115,27 @@ def main() -> None:
             print(f"| {name} | {scale:g} | " + " | ".join(f"{v:.2f}" for v in crps) + " | "
                   + " | ".join(f"{v:.2f}" for v in held) + " |")
     print(f"\n(a Gaussian's central 90 %: +-{norm.ppf(0.95):.3f} standard deviations)")
+    toppled_poses(predictor.model, test)
+
+
+def toppled_poses(pipeline, store) -> None:
+    """Part 3: the forecast's toppled samples upright, or tipped forward or back by 90 degrees."""
+    result = evaluate_distribution(pipeline, store, samples=32, keep_samples=True)
+    kept = result["trajectories"]
+    forecast, members, first = kept["forecast"], kept["members"], store.start[kept["sims"]]
+    p, q = forecast["com_position"], forecast["orientation_xyzw"][:, :, -1]
+    nominal = kept["deterministic"]
+    along = outcome_frame(nominal["com_position"][:, 0], nominal["orientation_xyzw"][:, 0], store.linear_velocity[first])["along"]
+    across = np.stack([-along[:, 1], along[:, 0], np.zeros(len(along))], axis=1)
+    print(f"\n3. toppled poses: {forecast['toppled'].mean():.2f} of the samples drawn as toppled, {members['toppled'].mean():.2f} "
+          "of the members toppled\n")
+    print("| toppled samples | ES final orientation (deg) |\n|---|---|")
+    for name, angle in (("upright (shipped)", 0.0), ("tipped forward", np.pi / 2), ("tipped back", -np.pi / 2)):
+        tip = np.concatenate([across * np.sin(angle / 2), np.full((len(along), 1), np.cos(angle / 2))], axis=1)
+        posed = np.where(forecast["toppled"][..., None], quat_multiply(np.repeat(tip[:, None], q.shape[1], axis=1), q), q)
+        scores = score_pushes(p[:, :, -1, :2] - p[:, :, 0, :2], members["displacement_xy"], posed,
+                              members["orientation_xyzw"], forecast["topple_probability"], members["toppled"]).mean
+        print(f"| {name} | {scores['orientation_es_deg']:.1f} |")
 
 
 if __name__ == "__main__":
