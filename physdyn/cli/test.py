@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     print(result["verdict"])
     if block is not None:
         f, d = block["forecast"], block["deterministic"]
-        print(f"distribution of {block['samples']} samples on {block['pushes']} pushes: final position energy score "
+        print(f"distribution ({block['distribution']}) of {block['samples']} samples on {block['pushes']} pushes: final position energy score "
               f"{f['position_es_cm']:.3g} cm (one roll-out {d['position_es_cm']:.3g}, floor {f['position_floor_cm']:.3g}), "
               f"orientation {f['orientation_es_deg']:.3g} deg (floor {f['orientation_floor_deg']:.3g}), "
               f"topple Brier {f['brier']:.3g} (floor {f['brier_floor']:.3g}), ECE {f['ece']:.3g}")

@@ -151,8 +151,9 @@ def evaluate_distribution(predictor: Any, store: StoreData | str, split: str = "
     coverage None under 3 samples), ``reliability`` (per forecast: the diagram's ``bin_edges``,
     ``mean_predicted``, ``observed_frequency``, ``count``), ``per_push`` (lists: ``sim``,
     ``member_topple_fraction``, ``<forecast>.topple_probability`` and ``<forecast>.<score>``), and what was
-    run: ``store``, ``split``, ``pushes``, ``members``, ``seconds``, ``samples``, ``seed``, ``uncertainty``,
-    ``uncertainty_source`` ("store" or "given"), ``friction_varied`` (False). ``keep_samples`` adds
+    run: ``store``, ``split``, ``pushes``, ``members``, ``seconds``, ``samples``, ``seed``, ``distribution`` (the
+    stage), ``uncertainty``, ``uncertainty_source`` ("store" or "given"), ``friction_varied`` (whether the
+    forecast spreads the friction too). ``keep_samples`` adds
     ``trajectories``: {"sims", "forecast", "deterministic" (``sampled_outcomes``), "members"
     (``member_outcomes``)} - numpy, not JSON.
     """
@@ -174,10 +175,14 @@ def evaluate_distribution(predictor: Any, store: StoreData | str, split: str = "
     for name, s in scores.items():
         per_push[f"{name}.topple_probability"] = forecasts[name]["topple_probability"].tolist()
         per_push.update({f"{name}.{key}": value.tolist() for key, value in s.per_push.items()})
+    pipeline = as_pipeline(predictor)
+    stage = getattr(pipeline, "distribution", None) or SampledPushes()
+    # the friction's spread is in a calibrated spread's laws, and drawn by sampled pushes of a motion that takes it
+    varied = not stage.rolls_out_samples or pipeline.motion.takes_friction
     out = {"store": store.url, "split": split, "pushes": int(len(sims)), "members": int(K),
-           "seconds": (T - 1) / store.rate_hz, "samples": count, "seed": int(seed),
+           "seconds": (T - 1) / store.rate_hz, "samples": count, "seed": int(seed), "distribution": stage.registered_name,
            "uncertainty": dataclasses.asdict(config), "uncertainty_source": "store" if uncertainty is None else "given",
-           "friction_varied": False, **{name: _summary(s) for name, s in scores.items()},
+           "friction_varied": bool(varied), **{name: _summary(s) for name, s in scores.items()},
            "reliability": {name: _diagram(s) for name, s in scores.items()}, "per_push": per_push}
     if keep_samples:
         out["trajectories"] = {"sims": sims, **forecasts, "members": members}

@@ -59,8 +59,10 @@ def distribution_markdown(block: dict, model: str) -> list[str]:
     source = "the store's ensemble's" if block["uncertainty_source"] == "store" else "given"
     lines = ["## Distribution scores", "",
              f"Final outcomes after {block['seconds']:.2f} s of {block['pushes']} pushes, each against its "
-             f"{block['members']} reference members; {block['samples']} sampled pushes each (uncertainty {source}: "
-             f"{spread}; friction not varied). Lower is better, except coverage: the share of members inside the "
+             f"{block['members']} reference members; {block['samples']} samples each from the "
+             f"{block['distribution']} distribution stage (uncertainty {source}: {spread}; friction "
+             f"{'varied' if block['friction_varied'] else 'not varied: the model predicts at its own'}). Lower is "
+             "better, except coverage: the share of members inside the "
              "forecast's 50 % and 90 % regions. Floor: a perfect forecast's expected score. Definitions: "
              "docs/evaluation.md.", ""]
     head = ["forecast", "position ES (cm)", "orientation ES (deg)", "Brier", "ECE", "coverage 50 %", "coverage 90 %"]

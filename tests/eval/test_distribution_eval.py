@@ -39,9 +39,12 @@ def test_physdyn_test_scores_the_samples_against_the_members(ensemble_store, tmp
     out = tmp_path / "report"
     assert main(["test", "--checkpoint", "contact_prior", "--data", ensemble_store, "--samples", "8", "--out", str(out),
                  "--no-viewer"]) == 0
-    assert "distribution of 8 samples" in capsys.readouterr().out
+    assert "distribution (sampled_pushes) of 8 samples" in capsys.readouterr().out
     block = json.loads((out / "metrics.json").read_text())["distribution"]
     assert block["samples"] == 8 and block["members"] == 4 and block["uncertainty_source"] == "store"
+    # the contact prior takes friction, so its sampled pushes draw it: the report says so
+    assert block["distribution"] == "sampled_pushes" and block["friction_varied"] is True
+    assert "sampled_pushes distribution stage" in (out / "report.md").read_text()
     assert set(SCORE_KEYS) <= set(block["forecast"]) and block["deterministic"]["coverage_90"] is None
     assert (out / "topple_reliability.png").read_bytes()[:4] == b"\x89PNG"
     table = [line for line in (out / "report.md").read_text().splitlines() if line.startswith("| contact_prior, ")]

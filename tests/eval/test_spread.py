@@ -141,7 +141,7 @@ def test_fit_spread_writes_a_preset_that_predicts_and_tests(tmp_path):
     assert pipeline.distribution.registered_name == "calibrated" and "wrote" in text
     code, text, err = cli("test", "--checkpoint", out, "--data", store, "--samples", 8, "--out", tmp_path / "report",
                           "--no-viewer")
-    assert code == 0 and "distribution of 8 samples" in text, err
+    assert code == 0 and "distribution (calibrated) of 8 samples" in text, err
     # replacing needs --overwrite; a store without members is refused; neither writes anything
     before = out.read_text()
     code, _, err = cli("fit-spread", "contact_prior", "--data", store, "--out", out)

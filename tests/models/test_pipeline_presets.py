@@ -13,9 +13,10 @@ import trimesh
 
 from physdyn.errors import ConfigError
 from physdyn.pipeline.presets import StageConfig, build_pipeline, load_pipeline, preset_file, read_preset, shipped_presets
+from physdyn.pipeline.spread import DistributionStage
 from physdyn.pipeline.stages import CorrectionStage, ToppleStage
 from physdyn.predict.predictor import load_predictor
-from physdyn.registry import ALL_REGISTRIES, CORRECTION_STAGES, TOPPLE_STAGES
+from physdyn.registry import ALL_REGISTRIES, CORRECTION_STAGES, DISTRIBUTION_STAGES, TOPPLE_STAGES
 
 OFFSET = np.array([0.03, -0.02, 0.0])  # m: what the toy correction adds to every position
 
@@ -43,6 +44,27 @@ class ToyHalf(ToppleStage):
         out = np.full((batch.size, batch.steps + 1), 0.5)
         out[:, 0] = 0.0
         return out
+
+
+@DISTRIBUTION_STAGES.register("toy_ring")
+class ToyRing(DistributionStage):
+    """Every sample ends ``Config.radius`` from the roll-out's end, spaced evenly around it."""
+
+    rolls_out_samples = False
+
+    @dataclasses.dataclass
+    class Config:
+        radius: float = 0.0
+
+    def __init__(self, config: "ToyRing.Config"):
+        self.radius = config.radius
+
+    def spread(self, nominal, lin_vel, ang_vel, uncertainty, samples, rng):
+        angle = 2 * np.pi * np.arange(samples) / samples
+        com = np.repeat(nominal["com_position"][:, None], samples, axis=1)
+        com[:, :, -1, :2] += self.radius * np.stack([np.cos(angle), np.sin(angle)], axis=-1)
+        return {"com_position": com, "orientation_xyzw": np.repeat(nominal["orientation_xyzw"][:, None], samples, axis=1),
+                "toppled": np.zeros(com.shape[:2], dtype=bool)}
 
 
 def test_the_shipped_presets_are_listed_and_each_names_a_stage_of_each_kind():
@@ -84,6 +106,22 @@ def test_a_registered_stage_named_in_a_preset_changes_the_prediction_as_it_says(
     assert plain["topple_probability"] is None and not plain["toppled"]
     np.testing.assert_array_equal(toy["topple_probability"][1:], 0.5)
     assert toy["toppled"] and toy["checkpoint"] == str(preset)
+
+
+def test_a_registered_distribution_stage_makes_the_samples(tmp_path):
+    box = trimesh.creation.box((0.1, 0.06, 0.04))
+    push = ([0.8, 0.1, 0.0], [0.0, 0.0, 3.0])
+    preset = tmp_path / "ring.yaml"
+    preset.write_text("name: ring\nmotion: {name: contact_prior}\ndistribution: {name: toy_ring, params: {radius: 0.05}}\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ring = load_predictor(str(preset))
+        plain = ring.predict(box, *push, seconds=1.0)
+        dist = ring.predict_distribution(box, *push, seconds=1.0, samples=8)
+    assert dist["distribution"] == "toy_ring" and "sample_lin_vel" not in dist
+    end = dist["com_position"][:, -1, :2] - plain["com_position"][-1, :2]
+    np.testing.assert_allclose(np.linalg.norm(end, axis=1), 0.05, atol=1e-12)
+    np.testing.assert_allclose(dist["final_position_mean"][:2], plain["com_position"][-1, :2], atol=1e-12)
 
 
 def test_a_preset_naming_an_unknown_stage_or_parameter_says_which_key(tmp_path):
