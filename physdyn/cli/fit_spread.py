@@ -10,7 +10,7 @@ EPILOG = """\
 example:
   physdyn simulate --config configs/data/ensemble_calibrate.yaml --out data/ensemble_calibrate.zarr --workers 2
   physdyn fit-spread fast --data data/ensemble_calibrate.zarr --out runs/fast_spread.yaml
-  physdyn predict MESH --lin-vel 1 0 0 --samples 32 --checkpoint runs/fast_spread.yaml
+  physdyn predict MESH --lin-vel 1 0 0 --ang-vel 0 0 2 --samples 32 --checkpoint runs/fast_spread.yaml
 The preset written is PRESET with its distribution stage replaced (`calibrated`, the coefficients fitted);
 docs/distributions.md says what they mean.
 """
