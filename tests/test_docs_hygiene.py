@@ -1,5 +1,6 @@
 """Keeps the documentation honest: no development history, no commit hashes in prose, no dead links, and
-no `physdyn` command or option in the README that the CLI does not have.
+no `physdyn` command or option in the README that the CLI does not have, and no `physdyn predict` in the docs
+that gives one post-push velocity without the other.
 
 Pages and code say what a thing is and why, for a user of the package; history goes to CHANGELOG.md. The
 checks read files only (no processes, no network) and take about a second. Each failure names the file, the
@@ -643,3 +644,32 @@ def test_readme_commands_exist() -> None:
                 failures.append(f"README.md:{number}: {command.strip()[:140]!r}: {problem}.")
     assert checked, "found no `physdyn` command in README.md's code: the README or this test's reading of it is wrong"
     assert not failures, _report(failures, "README commands the CLI does not have")
+
+
+def predict_velocity_problems(invocation: list[str]) -> list[str]:
+    """`physdyn predict` of one mesh needs both post-push velocities; a command that gives one only fails."""
+    if not invocation or invocation[0] != "predict" or "--batch" in invocation or "--help" in invocation:
+        return []
+    given = [flag for flag in ("--lin-vel", "--ang-vel") if flag in invocation]
+    missing = [flag for flag in ("--lin-vel", "--ang-vel") if flag not in invocation]
+    return [f"gives {given[0]} without {missing[0]}"] if len(given) == 1 else []
+
+
+def test_predict_velocity_detector() -> None:
+    assert predict_velocity_problems(["predict", "m.obj", "--lin-vel", "1", "0", "0"]) == ["gives --lin-vel without --ang-vel"]
+    assert not predict_velocity_problems(["predict", "m.obj", "--lin-vel", "1", "0", "0", "--ang-vel", "0", "0", "0"])
+    assert not predict_velocity_problems(["predict", "--batch", "r.jsonl", "--out-dir", "out"])
+    assert not predict_velocity_problems(["fit", "--config", "c.yaml"])
+
+
+def test_predict_commands_in_the_docs_give_both_velocities() -> None:
+    failures, checked = [], 0
+    pages = [(page, _read(page)) for page, _ in markdown_pages()] + list(generated_pages().items())
+    for page, text in pages:
+        for number, command in command_lines(text):
+            for invocation in physdyn_invocations(command):
+                checked += invocation[:1] == ["predict"]
+                failures += [f"{_rel(page)}:{number}: {command.strip()[:140]!r}: {problem}; `physdyn predict` of one "
+                             "mesh needs both --lin-vel and --ang-vel." for problem in predict_velocity_problems(invocation)]
+    assert checked, "found no `physdyn predict` command in the docs: the pages or this test's reading of them is wrong"
+    assert not failures, _report(failures, "predict commands that would fail")
