@@ -74,7 +74,7 @@ from physdyn.config import PhysicsConfig, config_from_dict  # noqa: E402
 from physdyn.config.uncertainty import resolve_uncertainty  # noqa: E402
 from physdyn.eval.scores import score_pushes  # noqa: E402
 from physdyn.geometry.mesh_io import load_mesh  # noqa: E402
-from physdyn.pipeline.spread import DistributionStage, SampledPushes  # noqa: E402
+from physdyn.pipeline.spread import SampledPushes, SpreadStage  # noqa: E402
 from physdyn.predict.predictor import Predictor  # noqa: E402
 from physdyn.sim.perturb import perturb_pushes  # noqa: E402
 from physdyn.sim.world import PhysicsWorld  # noqa: E402
@@ -150,7 +150,7 @@ class PhysdynForecasts:
         self.predictor, self.meshes, self.req, self.repeats = predictor, meshes, req, repeats
         self.variants = {"own": (predictor, SAMPLE_COUNTS)}
         pipeline = predictor.model
-        if isinstance(getattr(pipeline, "distribution", None), DistributionStage) and not pipeline.distribution.rolls_out_samples:
+        if isinstance(getattr(pipeline, "distribution", None), SpreadStage):
             sampled = Predictor(dataclasses.replace(pipeline, distribution=SampledPushes()), name=predictor.name,
                                 physics=predictor.physics)
             self.variants["sampled_pushes"] = (sampled, (SAMPLED_PUSHES_N,))

@@ -473,8 +473,8 @@ def cli_problems(args: list[str], parser: argparse.ArgumentParser) -> list[str]:
     f"the nine{'teenth'} run",
     f"the thirt{'ieth'} figure",
     f"stored under runs/s{16}/best.ckpt",
-    f"all_1127s{25}b gives 0.3",
-    f"fast_1126s{18}r5/metrics.json",
+    f"all_{1127}s{25}b gives 0.3",
+    f"fast_{1126}s{18}r5/metrics.json",
     f"`s{9}/fit.log`",
 ])
 def test_history_detector_catches(line: str) -> None:

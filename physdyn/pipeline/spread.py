@@ -22,6 +22,7 @@ With zero uncertainty every forecast is the prediction itself, N times. Shapes: 
 from __future__ import annotations
 
 import math
+from abc import abstractmethod
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -40,17 +41,23 @@ NUM_FEATURES = 1 + len(FEATURE_FLOORS)
 
 
 class DistributionStage(Stage):
-    """``rolls_out_samples``: the caller rolls out N sampled pushes (``sampled_pushes``); otherwise it rolls out
-    the push as given and ``spread`` draws the N outcomes around it."""
+    """``rolls_out_samples``: the caller rolls out N sampled pushes (``sampled_pushes``); otherwise the stage is
+    a ``SpreadStage``: the caller rolls out the push as given and ``spread`` draws the N outcomes around it."""
 
     rolls_out_samples: ClassVar[bool] = True
 
+
+class SpreadStage(DistributionStage):
+    """A distribution stage that draws N outcomes around the one roll-out of the push as given."""
+
+    rolls_out_samples = False
+
+    @abstractmethod
     def spread(self, nominal: dict[str, np.ndarray], lin_vel: np.ndarray, ang_vel: np.ndarray,
                uncertainty: UncertaintyConfig, samples: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
         """nominal: ``com_position`` (P, T, 3), ``orientation_xyzw`` (P, T, 4), ``topple_by_step`` (P, T) (each
         push's probability of having toppled by step t, never decreasing); lin_vel, ang_vel (P, 3) ->
         ``com_position`` (P, N, T, 3), ``orientation_xyzw`` (P, N, T, 4), ``toppled`` (P, N) bool."""
-        raise NotImplementedError(f"the distribution stage '{self.registered_name}' rolls out sampled pushes")
 
 
 @DISTRIBUTION_STAGES.register("sampled_pushes")
@@ -61,10 +68,8 @@ class SampledPushes(DistributionStage):
 
 
 @DISTRIBUTION_STAGES.register("calibrated")
-class CalibratedSpread(DistributionStage):
+class CalibratedSpread(SpreadStage):
     """One roll-out and a fitted spread around its end (the module docstring)."""
-
-    rolls_out_samples = False
 
     @dataclass
     class Config:

@@ -14,6 +14,8 @@ pushes' topple times. Their weights are a checkpoint's ``topple_classifier`` ent
 
 from __future__ import annotations
 
+from abc import abstractmethod
+
 from typing import Any
 
 import numpy as np
@@ -47,8 +49,9 @@ class _FittedTopple(ToppleStage):
         return cls.from_entry(source.part(CHECKPOINT_KEY, "topple"))
 
     @classmethod
+    @abstractmethod
     def from_entry(cls, entry: dict[str, Any]) -> ToppleStage:
-        raise NotImplementedError
+        """The stage of the classifier ``entry`` (the weights' ``CHECKPOINT_KEY`` entry) describes."""
 
     def _predict(self, batch: PreparedBatch, cloud: np.ndarray) -> np.ndarray:
         inertia = None if batch.body_inertia is None else np.asarray(batch.body_inertia).reshape(-1, 3, 3)

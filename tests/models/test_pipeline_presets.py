@@ -13,7 +13,7 @@ import trimesh
 
 from physdyn.errors import ConfigError
 from physdyn.pipeline.presets import StageConfig, build_pipeline, load_pipeline, preset_file, read_preset, shipped_presets
-from physdyn.pipeline.spread import DistributionStage
+from physdyn.pipeline.spread import SpreadStage
 from physdyn.pipeline.stages import CorrectionStage, ToppleStage
 from physdyn.predict.predictor import load_predictor
 from physdyn.registry import ALL_REGISTRIES, CORRECTION_STAGES, DISTRIBUTION_STAGES, TOPPLE_STAGES
@@ -47,10 +47,8 @@ class ToyHalf(ToppleStage):
 
 
 @DISTRIBUTION_STAGES.register("toy_ring")
-class ToyRing(DistributionStage):
+class ToyRing(SpreadStage):
     """Every sample ends ``Config.radius`` from the roll-out's end, spaced evenly around it."""
-
-    rolls_out_samples = False
 
     @dataclasses.dataclass
     class Config:
