@@ -54,20 +54,20 @@ import dataclasses  # noqa: E402
 import hashlib  # noqa: E402
 import inspect  # noqa: E402
 import json  # noqa: E402
-import time  # noqa: E402
 import warnings  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
-import torch  # noqa: E402
 
 if __package__:  # imported as benchmarks.distributions by a study (python -m benchmarks.studies.NAME)
-    from .frontier import SCHEDULES, Progress, best_of, load_predictors, machine_lines, pybullet_rows, schedule_name, warm_up
+    from .frontier import (SCHEDULES, Progress, best_of, closing_line, load_predictors, pybullet_rows, schedule_name,
+                           start_run, warm_up)
     from .frontier_report import fmt, fmt_ms
     from .frontier_sets import Requests, collect_set, requests_from_store, truth_store
 else:  # python benchmarks/distributions.py: Python puts this folder on the path
-    from frontier import SCHEDULES, Progress, best_of, load_predictors, machine_lines, pybullet_rows, schedule_name, warm_up
+    from frontier import (SCHEDULES, Progress, best_of, closing_line, load_predictors, pybullet_rows, schedule_name,
+                          start_run, warm_up)
     from frontier_report import fmt, fmt_ms
     from frontier_sets import Requests, collect_set, requests_from_store, truth_store
 from physdyn.config import PhysicsConfig, config_from_dict  # noqa: E402
@@ -472,12 +472,7 @@ def parse_args() -> argparse.Namespace:
 
 def main() -> None:
     args = parse_args()
-    torch.set_num_threads(1)
-    started = time.perf_counter()
-    header = machine_lines()
-    print("\n".join(header), flush=True)
-    work = Path(args.work)
-    work.mkdir(parents=True, exist_ok=True)
+    header, started, work = start_run(args.work)
     (name, predictor), = load_predictors([args.predictor], work).items()
     results = {}
     for set_name in args.sets:
@@ -487,7 +482,7 @@ def main() -> None:
         print(f"\n{set_name}\n{table(result['rows'])}", flush=True)
         print("\n".join(verdicts(set_name, result["rows"])), flush=True)
         print(heaviest(set_name, result["rows"], result["mesh_of_push"]), flush=True)
-    header.append(f"{time.perf_counter() - started:.0f} s in all; load average {os.getloadavg()[0]:.2f} at the end")
+    header.append(closing_line(started))
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(report(results, header, args.spread_cm))
     args.out.with_suffix(".json").write_text(json.dumps({"header": header, "sets": results}, indent=1, default=str))

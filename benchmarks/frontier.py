@@ -425,6 +425,23 @@ def machine_lines() -> list[str]:
             f"{time.strftime('%Y-%m-%d %H:%M')}"]
 
 
+def start_run(work: str) -> tuple[list[str], float, Path]:
+    """How a benchmark run begins: one torch thread, the machine's lines printed, the work folder made. Returns
+    the header lines, the start time (``time.perf_counter``) and the work folder."""
+    torch.set_num_threads(1)
+    started = time.perf_counter()
+    header = machine_lines()
+    print("\n".join(header), flush=True)
+    folder = Path(work)
+    folder.mkdir(parents=True, exist_ok=True)
+    return header, started, folder
+
+
+def closing_line(started: float) -> str:
+    """The header's last line: the run's wall clock since ``started`` and the load it ended under."""
+    return f"{time.perf_counter() - started:.0f} s in all; load average {os.getloadavg()[0]:.2f} at the end"
+
+
 def networks_checkpoint(work: Path) -> Path:
     """The bundled model exported with ``model.sim_seconds=0`` (its networks alone) into ``work``, once per
     bundled file (its content names the copy)."""
@@ -581,12 +598,7 @@ def parse_args() -> argparse.Namespace:
 
 def main() -> None:
     args = parse_args()
-    torch.set_num_threads(1)
-    started = time.perf_counter()
-    header = machine_lines()
-    print("\n".join(header), flush=True)
-    work = Path(args.work)
-    work.mkdir(parents=True, exist_ok=True)
+    header, started, work = start_run(args.work)
     predictors = load_predictors(args.predictor, work)
     results = {}
     for set_name in args.sets:
@@ -597,7 +609,7 @@ def main() -> None:
             print(skipped_line(result), flush=True)
         for line in verdicts(set_name, result["new_meshes"]["rows"]):
             print(line, flush=True)
-    header.append(f"{time.perf_counter() - started:.0f} s in all; load average {os.getloadavg()[0]:.2f} at the end")
+    header.append(closing_line(started))
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(report(results, header))
     args.out.with_suffix(".json").write_text(json.dumps({"header": header, "sets": results}, indent=1))
