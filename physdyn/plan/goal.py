@@ -12,6 +12,7 @@ import numpy as np
 from physdyn.config import PhysicsConfig
 from physdyn.errors import PredictionError
 from physdyn.geometry.rotations import quat_conjugate, quat_multiply, wrap_angle
+from physdyn.predict.request_checks import positive_number
 
 SUCCESS_DISTANCE_M = 0.02  # a goal is met within 2 cm ...
 SUCCESS_TURN_DEG = 15.0  # ... and 15 degrees
@@ -71,13 +72,7 @@ def check_goal(goal_xy: Any, goal_yaw_deg: Any, upright: Any, speed_max: float, 
 
 def check_budget(budget_s: Any) -> float:
     """The budget in seconds, or a one-line ``PredictionError``."""
-    try:
-        budget = float(budget_s)
-    except (TypeError, ValueError):
-        raise PredictionError(f"budget must be a number of seconds, got {budget_s!r}") from None
-    if not math.isfinite(budget) or budget <= 0:
-        raise PredictionError(f"budget must be a positive number of seconds, got {budget_s!r}; e.g. --budget 1")
-    return budget
+    return positive_number(budget_s, "budget", "--budget 1", unit=" of seconds")
 
 
 def turn_about_vertical(q0_xyzw: np.ndarray, q1_xyzw: np.ndarray) -> np.ndarray:

@@ -28,13 +28,20 @@ def as_vector(value: Any, name: str, length: int = 3) -> np.ndarray:
     return vec
 
 
-def check_seconds(seconds: Any) -> float:
+def positive_number(value: Any, what: str, example: str, unit: str = "") -> float:
+    """``value`` as a finite number above 0, or a one-line ``PredictionError`` naming ``what`` and the fix
+    (``example``: a flag as a user would give it; ``unit``: e.g. " of seconds")."""
     try:
-        s = float(seconds)
+        number = float(value)
     except (TypeError, ValueError):
-        raise PredictionError(f"seconds must be a number, got {seconds!r}") from None
-    if not math.isfinite(s) or s <= 0:
-        raise PredictionError(f"seconds must be a positive number, got {seconds!r}; e.g. --seconds 3")
+        raise PredictionError(f"{what} must be a number{unit}, got {value!r}") from None
+    if not math.isfinite(number) or number <= 0:
+        raise PredictionError(f"{what} must be a positive number{unit}, got {value!r}; e.g. {example}")
+    return number
+
+
+def check_seconds(seconds: Any) -> float:
+    s = positive_number(seconds, "seconds", "--seconds 3")
     if s > MAX_SECONDS:
         raise PredictionError(f"seconds must be at most {MAX_SECONDS:g} (objects come to rest within a few), got {seconds!r}")
     return s
