@@ -31,10 +31,8 @@ from physdyn.data.store import StoreData, load_store
 from physdyn.eval.evaluate import EvaluationError, select_sequences, store_rollouts
 from physdyn.eval.rollout import as_pipeline
 from physdyn.eval.scores import COVERAGE_LEVELS, DistributionScores, score_pushes
-from physdyn.geometry.rotations import tilt_angle
-from physdyn.pipeline.distribution import MIN_REGION_SAMPLES, check_samples, sample_requests
+from physdyn.pipeline.distribution import MIN_REGION_SAMPLES, check_samples, sample_requests, topple_by_step
 from physdyn.pipeline.spread import SampledPushes
-from physdyn.sim.trajectory import TOPPLE_ANGLE
 
 DEFAULT_SAMPLES = 32  # `physdyn test`'s N on an ensemble store
 ROWS_PER_BATCH = 1024  # roll-outs at a time (P x N rows in all)
@@ -86,14 +84,11 @@ def sampled_outcomes(predictor: Any, store: StoreData, sims: np.ndarray, uncerta
     rolled = store_rollouts(predictor, store, rows, start, steps, batch_size=ROWS_PER_BATCH, seed=seed,
                             friction=None if mus is None else mus.reshape(P * N))
     T = steps + 1
-    if rolled.topple_probability is not None:
-        by_step = np.asarray(rolled.topple_probability, dtype=np.float64)
-    else:
-        by_step = (tilt_angle(q0[:, None], rolled.orientation_xyzw) > TOPPLE_ANGLE).astype(np.float64)
+    by_step = topple_by_step(rolled, q0)
     return {"com_position": rolled.com_position.reshape(P, N, T, 3),
             "orientation_xyzw": rolled.orientation_xyzw.reshape(P, N, T, 4),
             "toppled": np.asarray(rolled.toppled, dtype=bool).reshape(P, N),
-            "topple_by_step": np.maximum.accumulate(by_step, axis=1).reshape(P, N, T), "lin_vel0": lin, "ang_vel0": ang}
+            "topple_by_step": by_step.reshape(P, N, T), "lin_vel0": lin, "ang_vel0": ang}
 
 
 def forecast_outcomes(predictor: Any, store: StoreData, sims: np.ndarray, uncertainty: UncertaintyConfig, samples: int,

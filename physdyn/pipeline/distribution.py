@@ -18,8 +18,9 @@ import numpy as np
 from physdyn.config.uncertainty import UncertaintyConfig, resolve_uncertainty
 from physdyn.errors import PredictionError
 from physdyn.eval.scores import COVERAGE_LEVELS, fit_positions, position_region
-from physdyn.geometry.rotations import quat_conjugate, quat_multiply
+from physdyn.geometry.rotations import quat_conjugate, quat_multiply, tilt_angle
 from physdyn.sim.perturb import perturb_pushes
+from physdyn.sim.trajectory import TOPPLE_ANGLE
 
 QUANTILE_LEVELS = (5, 25, 50, 75, 95)  # per cent
 MAX_SAMPLES = 4096  # a forecast's samples; far more only allocates (the regions settle within tens)
@@ -52,6 +53,16 @@ def sample_requests(lin_vel: Any, ang_vel: Any, friction: Any, uncertainty: Any,
     rng = np.random.default_rng(int(seed))
     lin_s, ang_s, mu_s = perturb_pushes(lin, ang, mu, config, rng, check_samples(samples))
     return lin_s, ang_s, None if friction is None else mu_s
+
+
+def topple_by_step(rolled: Any, q0: np.ndarray) -> np.ndarray:
+    """(B, T) each roll-out's probability of having toppled by step t: the running maximum of its topple output
+    where the model has one, else whether it has tilted past 45 degrees. rolled: a ``RolloutResult``; q0 (B, 4)."""
+    if rolled.topple_probability is not None:
+        by_step = np.asarray(rolled.topple_probability, dtype=np.float64)
+    else:
+        by_step = (tilt_angle(q0[:, None], rolled.orientation_xyzw) > TOPPLE_ANGLE).astype(np.float64)
+    return np.maximum.accumulate(by_step, axis=1)
 
 
 def turn_deg(orientation_xyzw: np.ndarray) -> np.ndarray:

@@ -24,9 +24,9 @@ from physdyn.config.uncertainty import resolve_uncertainty
 from physdyn.errors import PhysdynError, PredictionError, PredictionWarning
 from physdyn.eval.rollout import RolloutOptions, as_pipeline, prepared_batch
 from physdyn.geometry.mass import vertical_inertia, world_inertia_per_mass
-from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_rotvec, tilt_angle
+from physdyn.geometry.rotations import quat_conjugate, quat_multiply, quat_to_rotvec
 from physdyn.models.checkpoint_file import SHIPPED
-from physdyn.pipeline.distribution import check_samples, sample_requests, summarise
+from physdyn.pipeline.distribution import check_samples, sample_requests, summarise, topple_by_step
 from physdyn.pipeline.engine import Pipeline, run_stages
 from physdyn.pipeline.presets import build_pipeline, load_pipeline, preset_file, read_preset
 from physdyn.pipeline.spread import SampledPushes
@@ -36,7 +36,7 @@ from physdyn.predict.device import resolve_device
 from physdyn.predict.request_checks import (MAX_ANGULAR_SPEED, MAX_LINEAR_SPEED, MAX_SECONDS, _boolean, _orientations,  # noqa: F401
                                             _per_request, _per_request_values, as_vector, check_orientation, check_seconds)
 from physdyn.predict.simulator import SIMULATOR_NAME, simulate_from_state
-from physdyn.sim.trajectory import TOPPLE_ANGLE, resting_com_positions
+from physdyn.sim.trajectory import resting_com_positions
 
 BUNDLED_CHECKPOINT = SHIPPED["bundled"]
 # The default: the shipped model no PyBullet step beats on both accuracy and cost, on new meshes
@@ -203,8 +203,8 @@ class Predictor:
                                "time": np.arange(T, dtype=np.float64) / self.rate_hz}
         if stage.rolls_out_samples:
             # friction too, where the motion takes it
-            mu = self.frictions([body]) if body.friction is not None else None
-            if mu is None and getattr(self.model.motion, "takes_friction", False) and self.own_friction is not None:
+            mu = self.frictions([body])
+            if mu is None and self.model.motion.takes_friction and self.own_friction is not None:
                 mu = np.array([self.own_friction])
             lin, ang, mus = sample_requests(v0, w0, mu, config, count, seed)
             v, w = _velocities(lin[0], ang[0], count)
@@ -214,7 +214,7 @@ class Predictor:
             for idx, rolled in self._rollouts([body] * count, (q0, v, w), [T] * count, 1024,
                                               None if mus is None else mus[0]):
                 p[idx], q[idx], toppled[idx] = rolled.com_position, rolled.orientation_xyzw, rolled.toppled
-                by_step[idx] = self._topple_by_step(rolled, q0[idx])
+                by_step[idx] = topple_by_step(rolled, q0[idx])
             out.update(sample_lin_vel=v, sample_ang_vel=w)
             if mus is not None:
                 out["sample_friction"] = mus[0]
@@ -222,7 +222,7 @@ class Predictor:
             # the push as given, rolled out alone (``predict``'s roll-out), and the samples drawn around it
             _, rolled = next(self._rollouts([body], (q0[:1], v0[None], w0[None]), [T], 1))
             nominal = {"com_position": rolled.com_position, "orientation_xyzw": rolled.orientation_xyzw,
-                       "topple_by_step": np.maximum.accumulate(self._topple_by_step(rolled, q0[:1]), axis=1)}
+                       "topple_by_step": topple_by_step(rolled, q0[:1])}
             drawn = stage.spread(nominal, v0[None], w0[None], config, count, np.random.default_rng(int(seed)))
             p, q, toppled = drawn["com_position"][0], drawn["orientation_xyzw"][0], drawn["toppled"][0]
             by_step = np.repeat(nominal["topple_by_step"], count, axis=0)
@@ -232,13 +232,6 @@ class Predictor:
                    com_mesh=np.array(body.spec.com_mesh, dtype=np.float64), mesh=body.name, mesh_scale=body.scale,
                    checkpoint=self.name, distribution=stage.registered_name)
         return out
-
-    @staticmethod
-    def _topple_by_step(rolled: Any, q0: np.ndarray) -> np.ndarray:
-        """(B, T) each roll-out's own probabilities where the model has a topple output, else the 45 degree rule."""
-        if rolled.topple_probability is not None:
-            return np.asarray(rolled.topple_probability, dtype=np.float64)
-        return (tilt_angle(q0[:, None], rolled.orientation_xyzw) > TOPPLE_ANGLE).astype(np.float64)
 
     def _rollouts(self, bodies: list[PreparedBody], start: tuple, steps: list[int], chunk_size: int,
                   friction: np.ndarray | None = None):
